@@ -1,0 +1,44 @@
+//! The library's error type: who is at fault, with paths and values.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in the library.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// A parameter is out of range.
+    #[error("invalid parameter: {0}")]
+    InvalidParameter(String),
+    /// The inputs given to the filter are inconsistent.
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    /// A file is not a valid or supported EXR image.
+    #[error("{path}: {message}")]
+    Exr {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// Channels the denoiser needs are missing or inconsistent.
+    #[error("{path}: {message}\n  channels found: {found}")]
+    Channels {
+        /// The file.
+        path: PathBuf,
+        /// What is missing or wrong.
+        message: String,
+        /// The channels present, comma-separated.
+        found: String,
+    },
+    /// An I/O error on a path.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+}
+
+/// Result with the library error.
+pub type Result<T> = std::result::Result<T, Error>;

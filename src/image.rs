@@ -1,0 +1,109 @@
+//! Planes of `f32` samples placed in frame coordinates.
+//!
+//! A [`Plane`] is one channel over one [`Rect`]; reading is always by frame
+//! coordinate, so the same code serves a whole frame, a tile with its halo or a
+//! strip.
+
+use crate::geom::Rect;
+
+/// One channel of `f32` samples covering `rect`, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plane {
+    rect: Rect,
+    data: Vec<f32>,
+}
+
+impl Plane {
+    /// A plane filled with `value`.
+    pub fn filled(rect: Rect, value: f32) -> Plane {
+        Plane { rect, data: vec![value; rect.area()] }
+    }
+
+    /// A plane from row-major samples; `None` when the length does not match.
+    pub fn from_vec(rect: Rect, data: Vec<f32>) -> Option<Plane> {
+        (data.len() == rect.area()).then_some(Plane { rect, data })
+    }
+
+    /// A plane computed pixel by pixel from frame coordinates.
+    pub fn from_fn(rect: Rect, mut f: impl FnMut(i64, i64) -> f32) -> Plane {
+        let mut data = Vec::with_capacity(rect.area());
+        for y in rect.y0..rect.y1 {
+            for x in rect.x0..rect.x1 {
+                data.push(f(x, y));
+            }
+        }
+        Plane { rect, data }
+    }
+
+    /// The rectangle this plane covers.
+    pub fn rect(&self) -> Rect {
+        self.rect
+    }
+
+    /// All samples, row-major.
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// All samples, row-major, mutable.
+    pub fn data_mut(&mut self) -> &mut [f32] {
+        &mut self.data
+    }
+
+    /// Consume into the sample vector.
+    pub fn into_vec(self) -> Vec<f32> {
+        self.data
+    }
+
+    #[inline]
+    fn index(&self, x: i64, y: i64) -> usize {
+        debug_assert!(self.rect.contains(x, y), "({x},{y}) outside {:?}", self.rect);
+        (y - self.rect.y0) as usize * self.rect.width() + (x - self.rect.x0) as usize
+    }
+
+    /// The sample at frame pixel `(x, y)`, which must lie inside the plane.
+    #[inline]
+    pub fn get(&self, x: i64, y: i64) -> f32 {
+        self.data[self.index(x, y)]
+    }
+
+    /// Set the sample at frame pixel `(x, y)`.
+    #[inline]
+    pub fn set(&mut self, x: i64, y: i64, v: f32) {
+        let i = self.index(x, y);
+        self.data[i] = v;
+    }
+
+    /// Samples of row `y` for columns `[x0, x1)`.
+    #[inline]
+    pub fn row(&self, y: i64, x0: i64, x1: i64) -> &[f32] {
+        let i = self.index(x0, y);
+        &self.data[i..i + (x1 - x0) as usize]
+    }
+
+    /// A copy of the samples inside `rect` (which must lie inside the plane).
+    pub fn crop(&self, rect: Rect) -> Plane {
+        assert!(self.rect.contains_rect(&rect), "crop {rect:?} outside {:?}", self.rect);
+        let mut data = Vec::with_capacity(rect.area());
+        for y in rect.y0..rect.y1 {
+            data.extend_from_slice(self.row(y, rect.x0, rect.x1));
+        }
+        Plane { rect, data }
+    }
+
+    /// Copy `src` into this plane where they overlap.
+    pub fn paste(&mut self, src: &Plane) {
+        let r = self.rect.intersect(&src.rect);
+        for y in r.y0..r.y1 {
+            let s = src.index(r.x0, y);
+            let d = self.index(r.x0, y);
+            let w = r.width();
+            self.data[d..d + w].copy_from_slice(&src.data[s..s + w]);
+        }
+    }
+
+    /// Apply `f` to every sample.
+    pub fn map(&self, f: impl Fn(f32) -> f32) -> Plane {
+        Plane { rect: self.rect, data: self.data.iter().map(|&v| f(v)).collect() }
+    }
+}
