@@ -3,6 +3,7 @@
 //!
 //! Architecture (dependencies flow downward):
 //!
+//! * [`api`]: entry points (denoise a frame in memory or a file);
 //! * [`exrio`]: every contact with the `exr` crate, channel roles, frame I/O;
 //! * [`filter`]: the pure filter math (SPEC §1–5) on any rectangle of a frame;
 //! * [`geom`], [`image`]: frame-coordinate rectangles and planes;
@@ -27,6 +28,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod api;
 pub mod error;
 pub mod exrio;
 pub mod filter;

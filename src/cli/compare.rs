@@ -40,14 +40,15 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         xs.push(get(&fa, &a.a)?);
         rs.push(get(&fb, &a.b)?);
     }
+    let mut o = String::new();
     let m = metrics::compare(&xs.iter().map(|p| p.data()).collect::<Vec<_>>(), &rs.iter().map(|p| p.data()).collect::<Vec<_>>());
-    println!("relMSE: {:.6e}", m.rel_mse);
-    println!("MSE: {:.6e}", m.mse);
-    println!("PSNR: {:.3}", m.psnr);
-    println!("max_abs_diff: {:.6e}", m.max_abs_diff);
-    println!("bitwise_identical: {}", if m.bitwise_identical { "yes" } else { "no" });
+    o.push_str(&format!("relMSE: {:.6e}\n", m.rel_mse));
+    o.push_str(&format!("MSE: {:.6e}\n", m.mse));
+    o.push_str(&format!("PSNR: {:.3}\n", m.psnr));
+    o.push_str(&format!("max_abs_diff: {:.6e}\n", m.max_abs_diff));
+    o.push_str(&format!("bitwise_identical: {}\n", if m.bitwise_identical { "yes" } else { "no" }));
     if m.non_finite > 0 {
-        println!("non_finite_samples: {}", m.non_finite);
+        o.push_str(&format!("non_finite_samples: {}\n", m.non_finite));
     }
-    Ok(())
+    super::out(&o)
 }

@@ -25,41 +25,42 @@ pub struct InfoArgs {
 pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     let frame = exrio::read_frame(&a.input)?;
     let dw = frame.data_window;
-    println!("file: {}", a.input.display());
-    println!("data window: ({}, {}) - ({}, {})  {} x {}", dw.x0, dw.y0, dw.x1 - 1, dw.y1 - 1, dw.width(), dw.height());
+    let mut o = String::new();
+    o.push_str(&format!("file: {}\n", a.input.display()));
+    o.push_str(&format!("data window: ({}, {}) - ({}, {})  {} x {}\n", dw.x0, dw.y0, dw.x1 - 1, dw.y1 - 1, dw.width(), dw.height()));
     if let Some(l) = &frame.layout {
-        println!("layout: {}, {} compression, {} line order", l.blocks, l.compression, l.line_order);
+        o.push_str(&format!("layout: {}, {} compression, {} line order\n", l.blocks, l.compression, l.line_order));
     }
     let roles = roles::detect(&a.input, &frame.channel_names(), &a.channels.options())?;
-    println!("channels ({}):", frame.channels.len());
+    o.push_str(&format!("channels ({}):\n", frame.channels.len()));
     for c in &frame.channels {
-        println!("  {:<24} {:<6} {}", c.name, c.kind.to_string(), roles.role_of(&c.name));
+        o.push_str(&format!("  {:<24} {:<6} {}\n", c.name, c.kind.to_string(), roles.role_of(&c.name)));
     }
-    println!("denoiser will use:");
-    println!("  colour: {}", roles.colour.join(","));
+    o.push_str(&format!("denoiser will use:\n"));
+    o.push_str(&format!("  colour: {}\n", roles.colour.join(",")));
     match &roles.variance {
-        roles::VarianceRole::Sample(v) => println!("  variance: sample variance {}", v.join(",")),
-        roles::VarianceRole::Halves(x, y) => println!("  variance: (A-B)^2/4 from {} and {}", x.join(","), y.join(",")),
+        roles::VarianceRole::Sample(v) => o.push_str(&format!("  variance: sample variance {}\n", v.join(","))),
+        roles::VarianceRole::Halves(x, y) => o.push_str(&format!("  variance: (A-B)^2/4 from {} and {}\n", x.join(","), y.join(","))),
     }
     if roles.features.is_empty() {
-        println!("  features: none (colour-only NL-means)");
+        o.push_str(&format!("  features: none (colour-only NL-means)\n"));
     }
     for f in &roles.features {
-        println!(
+        o.push_str(&format!(
             "  feature {}: {}{}",
             f.name,
             f.channels.join(","),
             f.variance.as_ref().map_or(" (no variance)".to_string(), |v| format!(" with variance {}", v.join(",")))
-        );
+        ));
     }
     if roles.layers.is_empty() {
-        println!("  light layers: none (the beauty is filtered directly)");
+        o.push_str(&format!("  light layers: none (the beauty is filtered directly)\n"));
     }
     for l in &roles.layers {
-        println!("  light layer {}: {}", l.name, l.channels.join(","));
+        o.push_str(&format!("  light layer {}: {}\n", l.name, l.channels.join(",")));
     }
     for n in &roles.notes {
-        println!("  note: {n}");
+        o.push_str(&format!("  note: {n}\n"));
     }
     if a.plan {
         let params = a.filter.params()?;
@@ -67,10 +68,10 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
             feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
             layers: roles.layers.len(),
         };
-        println!("plan:");
+        o.push_str(&format!("plan:\n"));
         for line in Pipeline::new(params, inputs_shape).describe() {
-            println!("  {line}");
+            o.push_str(&format!("  {line}\n"));
         }
     }
-    Ok(())
+    super::out(&o)
 }

@@ -156,6 +156,16 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// Print to stdout; a closed pipe (`| head`) ends output quietly instead of panicking.
+pub fn out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut stdout = std::io::stdout().lock();
+    match stdout.write_all(text.as_bytes()).and_then(|_| stdout.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
+        _ => Ok(()),
+    }
+}
+
 /// A rayon pool with `threads` workers (0 = one per core).
 pub fn thread_pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
     Ok(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?)
