@@ -37,6 +37,7 @@ def scene():
     d["sensor"]["film"]["width"] = W
     d["sensor"]["film"]["height"] = H
     d["sensor"]["film"]["rfilter"] = {"type": "box"}
+    d["sensor"]["fov_axis"] = "larger"  # the box fills the wide frame (no black outside)
     d["back"]["bsdf"] = {
         "type": "diffuse",
         "reflectance": {

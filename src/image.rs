@@ -16,7 +16,10 @@ pub struct Plane {
 impl Plane {
     /// A plane filled with `value`.
     pub fn filled(rect: Rect, value: f32) -> Plane {
-        Plane { rect, data: vec![value; rect.area()] }
+        Plane {
+            rect,
+            data: vec![value; rect.area()],
+        }
     }
 
     /// A plane from row-major samples; `None` when the length does not match.
@@ -57,7 +60,11 @@ impl Plane {
 
     #[inline]
     fn index(&self, x: i64, y: i64) -> usize {
-        debug_assert!(self.rect.contains(x, y), "({x},{y}) outside {:?}", self.rect);
+        debug_assert!(
+            self.rect.contains(x, y),
+            "({x},{y}) outside {:?}",
+            self.rect
+        );
         (y - self.rect.y0) as usize * self.rect.width() + (x - self.rect.x0) as usize
     }
 
@@ -83,7 +90,11 @@ impl Plane {
 
     /// A copy of the samples inside `rect` (which must lie inside the plane).
     pub fn crop(&self, rect: Rect) -> Plane {
-        assert!(self.rect.contains_rect(&rect), "crop {rect:?} outside {:?}", self.rect);
+        assert!(
+            self.rect.contains_rect(&rect),
+            "crop {rect:?} outside {:?}",
+            self.rect
+        );
         let mut data = Vec::with_capacity(rect.area());
         for y in rect.y0..rect.y1 {
             data.extend_from_slice(self.row(y, rect.x0, rect.x1));
@@ -104,6 +115,9 @@ impl Plane {
 
     /// Apply `f` to every sample.
     pub fn map(&self, f: impl Fn(f32) -> f32) -> Plane {
-        Plane { rect: self.rect, data: self.data.iter().map(|&v| f(v)).collect() }
+        Plane {
+            rect: self.rect,
+            data: self.data.iter().map(|&v| f(v)).collect(),
+        }
     }
 }

@@ -43,7 +43,11 @@ pub fn compare(xs: &[&[f32]], refs: &[&[f32]]) -> Metrics {
     Metrics {
         rel_mse: rel / n_f,
         mse,
-        psnr: if mse > 0.0 { 10.0 * (1.0 / mse).log10() } else { f64::INFINITY },
+        psnr: if mse > 0.0 {
+            10.0 * (1.0 / mse).log10()
+        } else {
+            f64::INFINITY
+        },
         max_abs_diff: max_abs,
         bitwise_identical: identical,
         non_finite: bad,
@@ -57,10 +61,10 @@ mod tests {
     #[test]
     fn relmse_matches_definition() {
         let x = [1.0f32, 0.0, 2.0];
-        let r = [0.5f32, 0.1, 2.0];
+        let r = [0.5f32, 0.25, 2.0];
         let m = compare(&[&x], &[&r]);
-        let want = (0.25 / 0.26 + 0.01 / 0.02 + 0.0) / 3.0;
-        assert!((m.rel_mse - want).abs() < 1e-9);
+        let want = (0.25 / 0.26 + 0.0625 / 0.0725 + 0.0) / 3.0;
+        assert!((m.rel_mse - want).abs() < 1e-12);
         assert!(!m.bitwise_identical);
         assert!(compare(&[&x], &[&x]).bitwise_identical);
         assert_eq!(compare(&[&x], &[&x]).psnr, f64::INFINITY);

@@ -35,18 +35,30 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let mut rs = Vec::new();
     for ch in &a.channels {
         let get = |f: &exrio::Frame, p: &PathBuf| {
-            f.plane(ch).ok_or_else(|| anyhow::anyhow!("{}: no channel {ch:?} (channels: {})", p.display(), f.channel_names().join(", ")))
+            f.plane(ch).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: no channel {ch:?} (channels: {})",
+                    p.display(),
+                    f.channel_names().join(", ")
+                )
+            })
         };
         xs.push(get(&fa, &a.a)?);
         rs.push(get(&fb, &a.b)?);
     }
     let mut o = String::new();
-    let m = metrics::compare(&xs.iter().map(|p| p.data()).collect::<Vec<_>>(), &rs.iter().map(|p| p.data()).collect::<Vec<_>>());
+    let m = metrics::compare(
+        &xs.iter().map(|p| p.data()).collect::<Vec<_>>(),
+        &rs.iter().map(|p| p.data()).collect::<Vec<_>>(),
+    );
     o.push_str(&format!("relMSE: {:.6e}\n", m.rel_mse));
     o.push_str(&format!("MSE: {:.6e}\n", m.mse));
     o.push_str(&format!("PSNR: {:.3}\n", m.psnr));
     o.push_str(&format!("max_abs_diff: {:.6e}\n", m.max_abs_diff));
-    o.push_str(&format!("bitwise_identical: {}\n", if m.bitwise_identical { "yes" } else { "no" }));
+    o.push_str(&format!(
+        "bitwise_identical: {}\n",
+        if m.bitwise_identical { "yes" } else { "no" }
+    ));
     if m.non_finite > 0 {
         o.push_str(&format!("non_finite_samples: {}\n", m.non_finite));
     }

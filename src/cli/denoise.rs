@@ -39,9 +39,18 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let mut frame = exrio::read_frame(&a.input)?;
     let rect = frame.data_window;
-    info!("read {} ({}x{}, {} channels) in {:.2}s", a.input.display(), rect.width(), rect.height(), frame.channels.len(), t0.elapsed().as_secs_f64());
+    info!(
+        "read {} ({}x{}, {} channels) in {:.2}s",
+        a.input.display(),
+        rect.width(),
+        rect.height(),
+        frame.channels.len(),
+        t0.elapsed().as_secs_f64()
+    );
     let t1 = Instant::now();
-    let report = pool.install(|| api::denoise_frame(&mut frame, &a.input, &a.channels.options(), &params, a.half))?;
+    let report = pool.install(|| {
+        api::denoise_frame(&mut frame, &a.input, &a.channels.options(), &params, a.half)
+    })?;
     for n in &report.roles.notes {
         tracing::warn!("{}: {n}", a.input.display());
     }
@@ -54,7 +63,18 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
         report.roles.layers.len()
     );
     let t2 = Instant::now();
-    exrio::write_frame(&a.output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
-    info!("wrote {} in {:.2}s", a.output.display(), t2.elapsed().as_secs_f64());
+    exrio::write_frame(
+        &a.output,
+        &frame,
+        &WriteOptions {
+            compression: a.compression,
+            ..Default::default()
+        },
+    )?;
+    info!(
+        "wrote {} in {:.2}s",
+        a.output.display(),
+        t2.elapsed().as_secs_f64()
+    );
     Ok(())
 }

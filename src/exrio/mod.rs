@@ -50,12 +50,20 @@ pub struct Channel {
 impl Channel {
     /// A channel from `f32` samples (stored as `F32`).
     pub fn from_f32(name: impl Into<String>, samples: Vec<f32>) -> Channel {
-        Channel { name: name.into(), kind: SampleKind::F32, samples: FlatSamples::F32(samples) }
+        Channel {
+            name: name.into(),
+            kind: SampleKind::F32,
+            samples: FlatSamples::F32(samples),
+        }
     }
 
     /// A channel from `f32` samples stored as `F16`.
     pub fn from_f32_as_half(name: impl Into<String>, samples: &[f32]) -> Channel {
-        Channel { name: name.into(), kind: SampleKind::F16, samples: FlatSamples::F16(samples.iter().map(|&v| f16::from_f32(v)).collect()) }
+        Channel {
+            name: name.into(),
+            kind: SampleKind::F16,
+            samples: FlatSamples::F16(samples.iter().map(|&v| f16::from_f32(v)).collect()),
+        }
     }
 
     /// The samples converted to `f32`.
@@ -95,7 +103,13 @@ pub struct Frame {
 impl Frame {
     /// A frame with no attributes (e.g. for tests and generated data).
     pub fn new(data_window: Rect, channels: Vec<Channel>) -> Frame {
-        Frame { data_window, channels, layout: None, image_attributes: None, layer_attributes: None }
+        Frame {
+            data_window,
+            channels,
+            layout: None,
+            image_attributes: None,
+            layer_attributes: None,
+        }
     }
 
     /// Channel names in order.
@@ -110,7 +124,9 @@ impl Frame {
 
     /// The channel named `name` as a plane over the data window.
     pub fn plane(&self, name: &str) -> Option<Plane> {
-        self.channel(name).map(|c| Plane::from_vec(self.data_window, c.to_f32()).expect("channel length checked on read"))
+        self.channel(name).map(|c| {
+            Plane::from_vec(self.data_window, c.to_f32()).expect("channel length checked on read")
+        })
     }
 
     /// Replace (or add) a channel's samples.
@@ -126,7 +142,10 @@ impl Frame {
 }
 
 fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::Exr { path: path.to_path_buf(), message: e.to_string() }
+    Error::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 fn compression_name(c: Compression) -> String {
@@ -146,25 +165,45 @@ fn compression_name(c: Compression) -> String {
 /// a mip-mapped file is read.
 pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
-        exr::error::Error::Io(io) => Error::Io { path: path.to_path_buf(), source: io },
+        exr::error::Error::Io(io) => Error::Io {
+            path: path.to_path_buf(),
+            source: io,
+        },
         other => exr_err(path, format!("not a readable EXR file: {other}")),
     })?;
     if meta.headers.len() != 1 {
-        return Err(exr_err(path, format!("has {} parts; only single-part EXR files are supported", meta.headers.len())));
+        return Err(exr_err(
+            path,
+            format!(
+                "has {} parts; only single-part EXR files are supported",
+                meta.headers.len()
+            ),
+        ));
     }
     let header = &meta.headers[0];
     if header.deep {
-        return Err(exr_err(path, "is a deep EXR file; only flat images are supported"));
+        return Err(exr_err(
+            path,
+            "is a deep EXR file; only flat images are supported",
+        ));
     }
     for ch in header.channels.list.iter() {
         if ch.sampling != Vec2(1, 1) {
-            return Err(exr_err(path, format!("channel {} is subsampled ({:?}); only full-resolution channels are supported", ch.name, ch.sampling)));
+            return Err(exr_err(
+                path,
+                format!(
+                    "channel {} is subsampled ({:?}); only full-resolution channels are supported",
+                    ch.name, ch.sampling
+                ),
+            ));
         }
     }
     let layout = Layout {
         blocks: match header.blocks {
             exr::meta::BlockDescription::ScanLines => "scanline".into(),
-            exr::meta::BlockDescription::Tiles(t) => format!("tiled {}x{}", t.tile_size.0, t.tile_size.1),
+            exr::meta::BlockDescription::Tiles(t) => {
+                format!("tiled {}x{}", t.tile_size.0, t.tile_size.1)
+            }
         },
         compression: compression_name(header.compression),
         line_order: format!("{:?}", header.line_order).to_lowercase(),
@@ -179,7 +218,8 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
         .map_err(|e| exr_err(path, format!("could not decode: {e}")))?;
     let layer = image.layer_data;
     let pos = layer.attributes.layer_position;
-    let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, layer.size.0, layer.size.1);
+    let data_window =
+        Rect::from_origin_size(pos.0 as i64, pos.1 as i64, layer.size.0, layer.size.1);
     let mut channels = Vec::with_capacity(layer.channel_data.list.len());
     for ch in layer.channel_data.list {
         let kind = match &ch.sample_data {
@@ -188,9 +228,21 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
             FlatSamples::U32(_) => SampleKind::U32,
         };
         if ch.sample_data.len() != data_window.area() {
-            return Err(exr_err(path, format!("channel {} has {} samples, expected {}", ch.name, ch.sample_data.len(), data_window.area())));
+            return Err(exr_err(
+                path,
+                format!(
+                    "channel {} has {} samples, expected {}",
+                    ch.name,
+                    ch.sample_data.len(),
+                    data_window.area()
+                ),
+            ));
         }
-        channels.push(Channel { name: ch.name.to_string(), kind, samples: ch.sample_data });
+        channels.push(Channel {
+            name: ch.name.to_string(),
+            kind,
+            samples: ch.sample_data,
+        });
     }
     Ok(Frame {
         data_window,
@@ -251,7 +303,10 @@ struct AtomicTarget {
 
 impl AtomicTarget {
     fn new(path: &Path) -> AtomicTarget {
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out.exr".into());
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "out.exr".into());
         let tmp = path.with_file_name(format!(".{name}.nldenoise-{}.tmp", std::process::id()));
         AtomicTarget { tmp, done: false }
     }
@@ -268,13 +323,20 @@ impl Drop for AtomicTarget {
 /// Write a frame. The file appears at `path` only once completely written
 /// (written to a temporary file in the same folder, synced, then renamed), so
 /// a failure never leaves a partial file at `path`.
-pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::result::Result<(), Error> {
+pub fn write_frame(
+    path: &Path,
+    frame: &Frame,
+    opts: &WriteOptions,
+) -> std::result::Result<(), Error> {
     if frame.channels.is_empty() {
         return Err(exr_err(path, "refusing to write a frame with no channels"));
     }
     let dw = frame.data_window;
     let size = Vec2(dw.width(), dw.height());
-    let mut layer_attrs = frame.layer_attributes.clone().unwrap_or_else(LayerAttributes::default);
+    let mut layer_attrs = frame
+        .layer_attributes
+        .clone()
+        .unwrap_or_else(LayerAttributes::default);
     layer_attrs.layer_position = Vec2(dw.x0 as i32, dw.y0 as i32);
     let encoding = Encoding {
         compression: opts.compression.to_exr(),
@@ -282,27 +344,43 @@ pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::resu
             Some((w, h)) => Blocks::Tiles(Vec2(w, h)),
             None => Blocks::ScanLines,
         },
-        line_order: if opts.decreasing { LineOrder::Decreasing } else { LineOrder::Increasing },
+        line_order: if opts.decreasing {
+            LineOrder::Decreasing
+        } else {
+            LineOrder::Increasing
+        },
     };
-    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
-        frame.channels.iter().map(|c| AnyChannel::new(c.name.as_str(), c.samples.clone())).collect();
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = frame
+        .channels
+        .iter()
+        .map(|c| AnyChannel::new(c.name.as_str(), c.samples.clone()))
+        .collect();
     let layer = Layer::new(size, layer_attrs, encoding, AnyChannels::sort(list));
     let mut image = Image::from_layer(layer);
     if let Some(attrs) = &frame.image_attributes {
         image.attributes = attrs.clone();
     } else {
-        image.attributes.display_window = IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size);
+        image.attributes.display_window =
+            IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size);
     }
 
     let target = AtomicTarget::new(path);
-    let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.to_path_buf(), source: e };
+    let io_err = |p: &Path, e: std::io::Error| Error::Io {
+        path: p.to_path_buf(),
+        source: e,
+    };
     let file = File::create(&target.tmp).map_err(|e| io_err(path, e))?;
     let mut writer = BufWriter::new(file);
-    image.write().to_buffered(&mut writer).map_err(|e| match e {
-        exr::error::Error::Io(io) => io_err(path, io),
-        other => exr_err(path, format!("could not encode: {other}")),
-    })?;
-    let file = writer.into_inner().map_err(|e| io_err(path, e.into_error()))?;
+    image
+        .write()
+        .to_buffered(&mut writer)
+        .map_err(|e| match e {
+            exr::error::Error::Io(io) => io_err(path, io),
+            other => exr_err(path, format!("could not encode: {other}")),
+        })?;
+    let file = writer
+        .into_inner()
+        .map_err(|e| io_err(path, e.into_error()))?;
     file.sync_all().map_err(|e| io_err(path, e))?;
     drop(file);
     std::fs::rename(&target.tmp, path).map_err(|e| io_err(path, e))?;
@@ -313,5 +391,9 @@ pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::resu
 
 /// Summary of the channels for reports: name → kind.
 pub fn channel_kinds(frame: &Frame) -> HashMap<String, SampleKind> {
-    frame.channels.iter().map(|c| (c.name.clone(), c.kind)).collect()
+    frame
+        .channels
+        .iter()
+        .map(|c| (c.name.clone(), c.kind))
+        .collect()
 }

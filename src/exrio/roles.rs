@@ -46,7 +46,11 @@ impl std::str::FromStr for Selection {
             "auto" => Selection::Auto,
             "none" => Selection::None,
             list => {
-                let names: Vec<String> = list.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+                let names: Vec<String> = list
+                    .split(',')
+                    .map(|s| s.trim().to_string())
+                    .filter(|s| !s.is_empty())
+                    .collect();
                 if names.is_empty() {
                     return Err("expected auto, none or a comma-separated list of names".into());
                 }
@@ -133,7 +137,14 @@ impl Names<'_> {
     /// Channels of group `g` (`g.X`, not deeper), in file order.
     fn group(&self, g: &str) -> Vec<String> {
         let prefix = format!("{g}.");
-        self.all.iter().filter(|c| c.strip_prefix(&prefix).is_some_and(|rest| !rest.contains('.'))).cloned().collect()
+        self.all
+            .iter()
+            .filter(|c| {
+                c.strip_prefix(&prefix)
+                    .is_some_and(|rest| !rest.contains('.'))
+            })
+            .cloned()
+            .collect()
     }
 }
 
@@ -151,7 +162,12 @@ fn variance_candidates(channels: &[String]) -> Vec<Vec<String>> {
     let leaves: Vec<&str> = channels.iter().map(|c| leaf(c)).collect();
     let mk = |f: &dyn Fn(&str) -> String| leaves.iter().map(|l| f(l)).collect::<Vec<_>>();
     if g.is_empty() {
-        vec![mk(&|l| format!("var.{l}")), mk(&|l| format!("variance.{l}")), mk(&|l| format!("{l}_var")), mk(&|l| format!("{l}.var"))]
+        vec![
+            mk(&|l| format!("var.{l}")),
+            mk(&|l| format!("variance.{l}")),
+            mk(&|l| format!("{l}_var")),
+            mk(&|l| format!("{l}.var")),
+        ]
     } else {
         vec![
             mk(&|l| format!("var.{g}.{l}")),
@@ -163,12 +179,17 @@ fn variance_candidates(channels: &[String]) -> Vec<Vec<String>> {
 }
 
 fn find_variance(names: &Names<'_>, channels: &[String]) -> Option<Vec<String>> {
-    variance_candidates(channels).into_iter().find(|c| names.all_present(c))
+    variance_candidates(channels)
+        .into_iter()
+        .find(|c| names.all_present(c))
 }
 
 /// Feature names tried by `--features auto`, with the channel groups that carry them.
-const AUTO_FEATURES: &[(&str, &[&str])] =
-    &[("albedo", &["albedo", "Albedo", "diffuse_albedo"]), ("normal", &["N", "normal", "Normal", "normals"]), ("depth", &["Z", "depth", "Depth"])];
+const AUTO_FEATURES: &[(&str, &[&str])] = &[
+    ("albedo", &["albedo", "Albedo", "diffuse_albedo"]),
+    ("normal", &["N", "normal", "Normal", "normals"]),
+    ("depth", &["Z", "depth", "Depth"]),
+];
 
 /// Light layers tried by `--layers auto`.
 const AUTO_LAYERS: &[&str] = &["direct", "indirect"];
@@ -182,25 +203,49 @@ fn resolve_feature_channels(names: &Names<'_>, name: &str) -> Option<Vec<String>
 }
 
 fn err(path: &Path, names: &[String], message: impl Into<String>) -> Error {
-    Error::Channels { path: path.to_path_buf(), message: message.into(), found: names.join(", ") }
+    Error::Channels {
+        path: path.to_path_buf(),
+        message: message.into(),
+        found: names.join(", "),
+    }
 }
 
 /// Choose the roles of a frame's channels.
-pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Result<ChannelRoles, Error> {
+pub fn detect(
+    path: &Path,
+    channel_names: &[String],
+    opts: &RoleOptions,
+) -> Result<ChannelRoles, Error> {
     let names = Names { all: channel_names };
     let mut maps: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for m in &opts.maps {
-        let (role, list) = m
-            .split_once('=')
-            .ok_or_else(|| err(path, channel_names, format!("--map {m:?} is not ROLE=CH[,CH...]; {MAP_HELP}")))?;
-        let list: Vec<String> = list.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+        let (role, list) = m.split_once('=').ok_or_else(|| {
+            err(
+                path,
+                channel_names,
+                format!("--map {m:?} is not ROLE=CH[,CH...]; {MAP_HELP}"),
+            )
+        })?;
+        let list: Vec<String> = list
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .filter(|s| !s.is_empty())
+            .collect();
         for ch in &list {
             if !names.has(ch) {
-                return Err(err(path, channel_names, format!("--map {role}=... names channel {ch:?}, which the file does not have")));
+                return Err(err(
+                    path,
+                    channel_names,
+                    format!("--map {role}=... names channel {ch:?}, which the file does not have"),
+                ));
             }
         }
         if list.is_empty() {
-            return Err(err(path, channel_names, format!("--map {role}= names no channel")));
+            return Err(err(
+                path,
+                channel_names,
+                format!("--map {role}= names no channel"),
+            ));
         }
         maps.insert(role.to_string(), list);
     }
@@ -214,14 +259,22 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
             if names.all_present(&rgb) {
                 rgb
             } else {
-                return Err(err(path, channel_names, "no colour channels R,G,B; name them with --map color=CH,CH,CH"));
+                return Err(err(
+                    path,
+                    channel_names,
+                    "no colour channels R,G,B; name them with --map color=CH,CH,CH",
+                ));
             }
         }
     };
     let n = colour.len();
     let check_count = |role: &str, v: &[String]| {
         if v.len() != n {
-            Err(err(path, channel_names, format!("{role} has {} channels but the colour has {n}", v.len())))
+            Err(err(
+                path,
+                channel_names,
+                format!("{role} has {} channels but the colour has {n}", v.len()),
+            ))
         } else {
             Ok(())
         }
@@ -239,7 +292,13 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
             let b: Vec<String> = colour.iter().map(|c| format!("B.{}", leaf(c))).collect();
             (names.all_present(&a) && names.all_present(&b)).then_some((a, b))
         }
-        _ => return Err(err(path, channel_names, "--map A=... and --map B=... must be given together")),
+        _ => {
+            return Err(err(
+                path,
+                channel_names,
+                "--map A=... and --map B=... must be given together",
+            ));
+        }
     };
     if let Some(s) = &sample {
         check_count("the variance", s)?;
@@ -249,13 +308,25 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         check_count("half buffer B", b)?;
     }
     let variance = match (opts.variance, sample, halves) {
-        (VarianceChoice::Sample, Some(s), _) | (VarianceChoice::Auto, Some(s), _) => VarianceRole::Sample(s),
-        (VarianceChoice::Halves, _, Some((a, b))) | (VarianceChoice::Auto, None, Some((a, b))) => VarianceRole::Halves(a, b),
+        (VarianceChoice::Sample, Some(s), _) | (VarianceChoice::Auto, Some(s), _) => {
+            VarianceRole::Sample(s)
+        }
+        (VarianceChoice::Halves, _, Some((a, b))) | (VarianceChoice::Auto, None, Some((a, b))) => {
+            VarianceRole::Halves(a, b)
+        }
         (VarianceChoice::Sample, None, _) => {
-            return Err(err(path, channel_names, "--variance sample: no variance channels for the colour (e.g. var.R); map them with --map variance=..."));
+            return Err(err(
+                path,
+                channel_names,
+                "--variance sample: no variance channels for the colour (e.g. var.R); map them with --map variance=...",
+            ));
         }
         (VarianceChoice::Halves, _, None) => {
-            return Err(err(path, channel_names, "--variance halves: no half buffers (e.g. A.R and B.R); map them with --map A=... --map B=..."));
+            return Err(err(
+                path,
+                channel_names,
+                "--variance halves: no half buffers (e.g. A.R and B.R); map them with --map A=... --map B=...",
+            ));
         }
         (VarianceChoice::Auto, None, None) => {
             return Err(err(
@@ -268,13 +339,20 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
 
     // Features.
     let mut features = Vec::new();
-    let mapped_features: Vec<String> = maps.keys().filter_map(|k| k.strip_prefix("feature.")).map(str::to_string).collect();
+    let mapped_features: Vec<String> = maps
+        .keys()
+        .filter_map(|k| k.strip_prefix("feature."))
+        .map(str::to_string)
+        .collect();
     let wanted: Vec<(String, Option<Vec<String>>)> = match &opts.features {
         Selection::None => Vec::new(),
         Selection::Auto => {
             let mut v = Vec::new();
             for (_, groups) in AUTO_FEATURES {
-                if let Some(ch) = groups.iter().find_map(|g| resolve_feature_channels(&names, g)) {
+                if let Some(ch) = groups
+                    .iter()
+                    .find_map(|g| resolve_feature_channels(&names, g))
+                {
                     v.push((group_name(&ch), Some(ch)));
                 }
             }
@@ -283,7 +361,10 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         Selection::List(list) => list.iter().map(|l| (l.clone(), None)).collect(),
     };
     let mut seen = Vec::new();
-    for (fname, detected) in wanted.into_iter().chain(mapped_features.iter().map(|m| (m.clone(), None))) {
+    for (fname, detected) in wanted
+        .into_iter()
+        .chain(mapped_features.iter().map(|m| (m.clone(), None)))
+    {
         if seen.contains(&fname) {
             continue;
         }
@@ -293,7 +374,13 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
             None => match detected.or_else(|| resolve_feature_channels(&names, &fname)) {
                 Some(c) => c,
                 None => {
-                    return Err(err(path, channel_names, format!("feature {fname:?} has no channels (looked for {fname}.* and {fname}); map it with --map feature.{fname}=CH,...")));
+                    return Err(err(
+                        path,
+                        channel_names,
+                        format!(
+                            "feature {fname:?} has no channels (looked for {fname}.* and {fname}); map it with --map feature.{fname}=CH,..."
+                        ),
+                    ));
                 }
             },
         };
@@ -304,14 +391,30 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         if let Some(v) = &variance
             && v.len() != channels.len()
         {
-            return Err(err(path, channel_names, format!("feature {fname}: {} variance channels for {} channels", v.len(), channels.len())));
+            return Err(err(
+                path,
+                channel_names,
+                format!(
+                    "feature {fname}: {} variance channels for {} channels",
+                    v.len(),
+                    channels.len()
+                ),
+            ));
         }
-        features.push(FeatureRole { name: fname, channels, variance });
+        features.push(FeatureRole {
+            name: fname,
+            channels,
+            variance,
+        });
     }
 
     // Layers.
     let mut layers = Vec::new();
-    let mapped_layers: Vec<String> = maps.keys().filter_map(|k| k.strip_prefix("layer.")).map(str::to_string).collect();
+    let mapped_layers: Vec<String> = maps
+        .keys()
+        .filter_map(|k| k.strip_prefix("layer."))
+        .map(str::to_string)
+        .collect();
     let (wanted, explicit): (Vec<String>, bool) = match &opts.layers {
         Selection::None => (Vec::new(), false),
         Selection::Auto => (AUTO_LAYERS.iter().map(|s| s.to_string()).collect(), false),
@@ -323,11 +426,21 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         let channels = match maps.remove(&format!("layer.{lname}")) {
             Some(c) => c,
             None => {
-                let ch: Vec<String> = colour.iter().map(|c| format!("{lname}.{}", leaf(c))).collect();
+                let ch: Vec<String> = colour
+                    .iter()
+                    .map(|c| format!("{lname}.{}", leaf(c)))
+                    .collect();
                 if names.all_present(&ch) {
                     ch
                 } else if is_explicit {
-                    return Err(err(path, channel_names, format!("layer {lname:?}: channels {} not found; map them with --map layer.{lname}=...", ch.join(","))));
+                    return Err(err(
+                        path,
+                        channel_names,
+                        format!(
+                            "layer {lname:?}: channels {} not found; map them with --map layer.{lname}=...",
+                            ch.join(",")
+                        ),
+                    ));
                 } else {
                     continue;
                 }
@@ -341,13 +454,29 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         match variance {
             Some(v) => {
                 check_count(&format!("variance of layer {lname}"), &v)?;
-                let l = LayerRole { name: lname.clone(), channels, variance: VarianceRole::Sample(v) };
-                if is_explicit { layers.push(l) } else { auto_layers.push(l) }
+                let l = LayerRole {
+                    name: lname.clone(),
+                    channels,
+                    variance: VarianceRole::Sample(v),
+                };
+                if is_explicit {
+                    layers.push(l)
+                } else {
+                    auto_layers.push(l)
+                }
             }
             None if is_explicit => {
-                return Err(err(path, channel_names, format!("layer {lname:?} has no variance channels (e.g. var.{lname}.R); map them with --map layer-var.{lname}=...")));
+                return Err(err(
+                    path,
+                    channel_names,
+                    format!(
+                        "layer {lname:?} has no variance channels (e.g. var.{lname}.R); map them with --map layer-var.{lname}=..."
+                    ),
+                ));
             }
-            None => notes.push(format!("layer {lname} found but it has no variance; layers not used")),
+            None => notes.push(format!(
+                "layer {lname} found but it has no variance; layers not used"
+            )),
         }
     }
     if !auto_layers.is_empty() {
@@ -356,22 +485,40 @@ pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Resu
         } else {
             notes.push(format!(
                 "only {} of the light layers {} found; layers not used",
-                auto_layers.iter().map(|l| l.name.as_str()).collect::<Vec<_>>().join(","),
+                auto_layers
+                    .iter()
+                    .map(|l| l.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(","),
                 AUTO_LAYERS.join("+")
             ));
         }
     }
     if let Some(k) = maps.keys().next() {
-        return Err(err(path, channel_names, format!("--map role {k:?} is not used: {MAP_HELP}")));
+        return Err(err(
+            path,
+            channel_names,
+            format!("--map role {k:?} is not used: {MAP_HELP}"),
+        ));
     }
-    Ok(ChannelRoles { colour, variance, features, layers, notes })
+    Ok(ChannelRoles {
+        colour,
+        variance,
+        features,
+        layers,
+        notes,
+    })
 }
 
 /// The name a detected feature goes by: its channel group (`albedo`, `N`), or
 /// the channel itself for a single root channel (`Z`).
 fn group_name(channels: &[String]) -> String {
     let g = group_of(&channels[0]);
-    if g.is_empty() { channels[0].clone() } else { g.to_string() }
+    if g.is_empty() {
+        channels[0].clone()
+    } else {
+        g.to_string()
+    }
 }
 
 impl ChannelRoles {
@@ -382,8 +529,12 @@ impl ChannelRoles {
             return "colour (denoised)".into();
         }
         match &self.variance {
-            VarianceRole::Sample(v) if pos(v).is_some() => return "colour variance (sample variance of the mean)".into(),
-            VarianceRole::Halves(a, b) if pos(a).is_some() || pos(b).is_some() => return "colour half buffer (variance = (A-B)^2/4)".into(),
+            VarianceRole::Sample(v) if pos(v).is_some() => {
+                return "colour variance (sample variance of the mean)".into();
+            }
+            VarianceRole::Halves(a, b) if pos(a).is_some() || pos(b).is_some() => {
+                return "colour half buffer (variance = (A-B)^2/4)".into();
+            }
             _ => {}
         }
         for f in &self.features {
@@ -418,19 +569,43 @@ impl ChannelRoles {
 
     /// Build the filter's inputs from a frame held in memory.
     pub fn inputs(&self, frame: &Frame) -> FrameInputs {
-        let planes = |names: &[String]| names.iter().map(|n| frame.plane(n).expect("role channels exist")).collect::<Vec<_>>();
+        let planes = |names: &[String]| {
+            names
+                .iter()
+                .map(|n| frame.plane(n).expect("role channels exist"))
+                .collect::<Vec<_>>()
+        };
         let var = |v: &VarianceRole| match v {
             VarianceRole::Sample(s) => VarianceSource::Sample(planes(s)),
-            VarianceRole::Halves(a, b) => VarianceSource::Halves { a: planes(a), b: planes(b) },
+            VarianceRole::Halves(a, b) => VarianceSource::Halves {
+                a: planes(a),
+                b: planes(b),
+            },
         };
         FrameInputs {
-            colour: Buffer { name: "beauty".into(), values: planes(&self.colour), variance: var(&self.variance) },
+            colour: Buffer {
+                name: "beauty".into(),
+                values: planes(&self.colour),
+                variance: var(&self.variance),
+            },
             features: self
                 .features
                 .iter()
-                .map(|f| Feature { name: f.name.clone(), values: planes(&f.channels), variance: f.variance.as_deref().map(planes) })
+                .map(|f| Feature {
+                    name: f.name.clone(),
+                    values: planes(&f.channels),
+                    variance: f.variance.as_deref().map(planes),
+                })
                 .collect(),
-            layers: self.layers.iter().map(|l| Buffer { name: l.name.clone(), values: planes(&l.channels), variance: var(&l.variance) }).collect(),
+            layers: self
+                .layers
+                .iter()
+                .map(|l| Buffer {
+                    name: l.name.clone(),
+                    values: planes(&l.channels),
+                    variance: var(&l.variance),
+                })
+                .collect(),
         }
     }
 }

@@ -66,14 +66,23 @@ pub fn box_mean(
         return;
     }
     let f = radius as i64;
-    let rows = Rect { x0: dst_rect.x0, x1: dst_rect.x1, y0: (dst_rect.y0 - f).max(clip.y0), y1: (dst_rect.y1 + f).min(clip.y1) };
-    debug_assert!(src_rect.contains_rect(&Rect { x0: (dst_rect.x0 - f).max(clip.x0), x1: (dst_rect.x1 + f).min(clip.x1), ..rows }));
+    let rows = Rect {
+        x0: dst_rect.x0,
+        x1: dst_rect.x1,
+        y0: (dst_rect.y0 - f).max(clip.y0),
+        y1: (dst_rect.y1 + f).min(clip.y1),
+    };
+    debug_assert!(src_rect.contains_rect(&Rect {
+        x0: (dst_rect.x0 - f).max(clip.x0),
+        x1: (dst_rect.x1 + f).min(clip.x1),
+        ..rows
+    }));
     let w = dst_rect.width();
     scratch.clear();
     scratch.resize(rows.area(), 0.0);
     let sw = src_rect.width();
     // Columns whose whole window lies inside the clip take the vectorisable path.
-    let inner_x0 = (clip.x0 + f).max(dst_rect.x0);
+    let inner_x0 = (clip.x0 + f).max(dst_rect.x0).min(dst_rect.x1);
     let inner_x1 = (clip.x1 - f).min(dst_rect.x1).max(inner_x0);
     for (ri, y) in (rows.y0..rows.y1).enumerate() {
         let src_row = &src[(y - src_rect.y0) as usize * sw..][..sw];
@@ -149,7 +158,13 @@ pub fn accumulate_colour_distance(
 /// `acc[i] += ((fp - fq)^2 - (vp + min(vp, vq))) * inv_den[i]`
 /// (`vp = vq = 0` when the feature has no variance).
 #[inline]
-pub fn accumulate_feature_distance(acc: &mut [f32], fp: &[f32], fq: &[f32], var: Option<(&[f32], &[f32])>, inv_den: &[f32]) {
+pub fn accumulate_feature_distance(
+    acc: &mut [f32],
+    fp: &[f32],
+    fq: &[f32],
+    var: Option<(&[f32], &[f32])>,
+    inv_den: &[f32],
+) {
     let n = acc.len();
     let (fp, fq, inv_den) = (&fp[..n], &fq[..n], &inv_den[..n]);
     match var {
@@ -193,13 +208,33 @@ mod tests {
     #[test]
     fn box_mean_matches_direct_sum_and_is_region_invariant() {
         let src_rect = Rect::from_origin_size(-2, 3, 17, 11);
-        let src: Vec<f32> = (0..src_rect.area()).map(|i| ((i * 7919) % 101) as f32 * 0.37).collect();
-        let clip = Rect { x0: -1, y0: 3, x1: 14, y1: 13 };
+        let src: Vec<f32> = (0..src_rect.area())
+            .map(|i| ((i * 7919) % 101) as f32 * 0.37)
+            .collect();
+        let clip = Rect {
+            x0: -1,
+            y0: 3,
+            x1: 14,
+            y1: 13,
+        };
         let full = clip;
         let mut whole = vec![0.0; full.area()];
         let mut scratch = Vec::new();
         box_mean(&src, src_rect, clip, 2, full, &mut whole, &mut scratch);
-        for sub in [Rect { x0: 3, y0: 5, x1: 9, y1: 8 }, Rect { x0: -1, y0: 3, x1: 0, y1: 13 }] {
+        for sub in [
+            Rect {
+                x0: 3,
+                y0: 5,
+                x1: 9,
+                y1: 8,
+            },
+            Rect {
+                x0: -1,
+                y0: 3,
+                x1: 0,
+                y1: 13,
+            },
+        ] {
             let mut part = vec![0.0; sub.area()];
             box_mean(&src, src_rect, clip, 2, sub, &mut part, &mut scratch);
             for y in sub.y0..sub.y1 {
@@ -211,7 +246,8 @@ mod tests {
                     let mut n = 0.0;
                     for yy in (y - 2).max(clip.y0)..=(y + 2).min(clip.y1 - 1) {
                         for xx in (x - 2).max(clip.x0)..=(x + 2).min(clip.x1 - 1) {
-                            sum += src[((yy - src_rect.y0) * 17 + xx - src_rect.x0) as usize] as f64;
+                            sum +=
+                                src[((yy - src_rect.y0) * 17 + xx - src_rect.x0) as usize] as f64;
                             n += 1.0;
                         }
                     }

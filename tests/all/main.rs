@@ -1,0 +1,8 @@
+//! One integration-test binary; each module covers one surface.
+
+mod cli;
+mod common;
+mod exr_io;
+mod filter_math;
+mod reference;
+mod tiling;

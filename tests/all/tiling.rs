@@ -1,0 +1,202 @@
+//! Region (tile) evaluation equals whole-frame filtering bit for bit, and the
+//! derived halo is exactly what the pipeline reads.
+
+use nldenoise::filter::{self, FrameInputs, InputShape, Params, Pipeline};
+use nldenoise::geom::Rect;
+use nldenoise::image::Plane;
+use proptest::prelude::*;
+
+use crate::common::{ALL_KINDS, Kinds, bits, crop_inputs, frame_inputs, map_planes, small_params};
+
+/// Filter `frame` tile by tile, each tile reading only `(tile ⊕ halo) ∩ frame`.
+fn tiled(
+    inputs: &FrameInputs,
+    frame: Rect,
+    params: &Params,
+    tw: usize,
+    th: usize,
+) -> filter::Denoised {
+    let halo = Pipeline::new(*params, InputShape::of(inputs)).halo();
+    let mut colour: Vec<Plane> = inputs
+        .colour
+        .values
+        .iter()
+        .map(|_| Plane::filled(frame, f32::NAN))
+        .collect();
+    let mut layers: Vec<Vec<Plane>> = inputs
+        .layers
+        .iter()
+        .map(|l| {
+            l.values
+                .iter()
+                .map(|_| Plane::filled(frame, f32::NAN))
+                .collect()
+        })
+        .collect();
+    for tile in frame.tiles(tw, th) {
+        let window = crop_inputs(inputs, tile.expand(halo).intersect(&frame));
+        let out = filter::denoise_region(&window, frame, tile, params).unwrap();
+        for (dst, src) in colour.iter_mut().zip(&out.colour) {
+            dst.paste(src);
+        }
+        for (dl, sl) in layers.iter_mut().zip(&out.layers) {
+            for (dst, src) in dl.iter_mut().zip(sl) {
+                dst.paste(src);
+            }
+        }
+    }
+    filter::Denoised { colour, layers }
+}
+
+fn assert_tiled_equals_whole(
+    frame: Rect,
+    seed: u64,
+    kinds: Kinds,
+    params: &Params,
+    tiles: &[(usize, usize)],
+) {
+    let inputs = frame_inputs(frame, seed, kinds);
+    let whole = filter::denoise_region(&inputs, frame, frame, params).unwrap();
+    let whole_bits = bits(&whole);
+    for &(tw, th) in tiles {
+        let t = tiled(&inputs, frame, params, tw, th);
+        assert!(
+            bits(&t) == whole_bits,
+            "tiles {tw}x{th} differ from whole frame ({kinds:?}, {frame:?}, {params:?})"
+        );
+    }
+}
+
+#[test]
+fn tiles_equal_whole_frame_for_every_input_kind() {
+    let frame = Rect::from_origin_size(-7, 11, 37, 29);
+    for kinds in ALL_KINDS {
+        assert_tiled_equals_whole(
+            frame,
+            42,
+            kinds,
+            &small_params(3, 2),
+            &[(1, 1), (7, 7), (16, 16), (5, 29), (64, 64)],
+        );
+    }
+}
+
+#[test]
+fn tiles_equal_whole_frame_on_thin_frames() {
+    for frame in [
+        Rect::from_origin_size(0, 0, 1, 40),
+        Rect::from_origin_size(0, 0, 40, 1),
+        Rect::from_origin_size(3, 3, 2, 2),
+    ] {
+        for kinds in ALL_KINDS {
+            assert_tiled_equals_whole(
+                frame,
+                7,
+                kinds,
+                &small_params(4, 2),
+                &[(1, 1), (7, 3), (3, 7)],
+            );
+        }
+    }
+}
+
+#[test]
+fn thread_count_does_not_change_bits() {
+    let frame = Rect::from_origin_size(0, 0, 150, 70);
+    let inputs = frame_inputs(frame, 5, ALL_KINDS[2]);
+    let params = small_params(3, 2);
+    let run = |n: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
+        bits(&pool.install(|| filter::denoise_region(&inputs, frame, frame, &params).unwrap()))
+    };
+    let one = run(1);
+    for n in [2, 3, 4] {
+        assert!(run(n) == one, "{n} threads differ from 1");
+    }
+}
+
+/// Replace every sample of `inputs` outside `keep` by `value`.
+fn poison_outside(inputs: &FrameInputs, keep: Rect, value: f32) -> FrameInputs {
+    map_planes(inputs, &|p: &Plane| {
+        let mut q = p.clone();
+        let r = p.rect();
+        for y in r.y0..r.y1 {
+            for x in r.x0..r.x1 {
+                if !keep.contains(x, y) {
+                    q.set(x, y, value);
+                }
+            }
+        }
+        q
+    })
+}
+
+#[test]
+fn halo_is_sufficient_and_tight() {
+    let frame = Rect::from_origin_size(0, 0, 60, 50);
+    let tile = Rect::from_origin_size(25, 20, 6, 5);
+    let configs: Vec<(Kinds, Params)> = vec![
+        (ALL_KINDS[0], small_params(3, 2)),
+        (ALL_KINDS[3], small_params(2, 1)),
+        (ALL_KINDS[1], small_params(3, 1)),
+        (
+            ALL_KINDS[2],
+            Params {
+                variance_prefilter_radius: 3,
+                ..small_params(2, 2)
+            },
+        ),
+        (
+            ALL_KINDS[1],
+            Params {
+                feature_prefilter: filter::FeaturePrefilter {
+                    search_radius: 4,
+                    patch_radius: 2,
+                    strength: 0.45,
+                },
+                ..small_params(2, 1)
+            },
+        ),
+    ];
+    for (kinds, params) in configs {
+        let inputs = frame_inputs(frame, 11, kinds);
+        let halo = Pipeline::new(params, InputShape::of(&inputs)).halo();
+        assert!(
+            tile.expand(halo + 1).x0 >= 0 && frame.contains_rect(&tile.expand(halo + 1)),
+            "test tile must not touch the border"
+        );
+        let want = bits(&filter::denoise_region(&inputs, frame, tile, &params).unwrap());
+        // Anything beyond the halo may change without effect...
+        let far = poison_outside(&inputs, tile.expand(halo), 123.0);
+        assert!(
+            bits(&filter::denoise_region(&far, frame, tile, &params).unwrap()) == want,
+            "{kinds:?}: data beyond the halo {halo} changed the output"
+        );
+        // ...but the ring at exactly the halo distance matters: one pixel less is not enough.
+        let near = poison_outside(&inputs, tile.expand(halo - 1), 123.0);
+        assert!(
+            bits(&filter::denoise_region(&near, frame, tile, &params).unwrap()) != want,
+            "{kinds:?}: halo {halo} is not tight"
+        );
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, .. ProptestConfig::default() })]
+    #[test]
+    fn random_frames_tiles_and_options_are_bit_exact(
+        w in 1usize..40, h in 1usize..30, x0 in -20i64..20, y0 in -20i64..20,
+        tw in 1usize..20, th in 1usize..20, r in 0usize..5, f in 0usize..3, rho in 0usize..3,
+        fp in 0usize..3, kind in 0usize..4, seed in 0u64..1000, fv in any::<bool>(),
+    ) {
+        let frame = Rect::from_origin_size(x0, y0, w, h);
+        let mut params = small_params(r, f);
+        params.variance_prefilter_radius = rho;
+        params.feature_prefilter.search_radius = fp;
+        params.feature_variance = fv;
+        assert_tiled_equals_whole(frame, seed, ALL_KINDS[kind], &params, &[(tw, th)]);
+    }
+}
