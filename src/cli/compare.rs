@@ -3,6 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::bail;
+use std::fmt::Write as _;
+
 use clap::Args;
 use nldenoise::exrio;
 use nldenoise::metrics;
@@ -51,16 +53,17 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         &xs.iter().map(|p| p.data()).collect::<Vec<_>>(),
         &rs.iter().map(|p| p.data()).collect::<Vec<_>>(),
     );
-    o.push_str(&format!("relMSE: {:.6e}\n", m.rel_mse));
-    o.push_str(&format!("MSE: {:.6e}\n", m.mse));
-    o.push_str(&format!("PSNR: {:.3}\n", m.psnr));
-    o.push_str(&format!("max_abs_diff: {:.6e}\n", m.max_abs_diff));
-    o.push_str(&format!(
-        "bitwise_identical: {}\n",
+    writeln!(o, "relMSE: {:.6e}", m.rel_mse)?;
+    writeln!(o, "MSE: {:.6e}", m.mse)?;
+    writeln!(o, "PSNR: {:.3}", m.psnr)?;
+    writeln!(o, "max_abs_diff: {:.6e}", m.max_abs_diff)?;
+    writeln!(
+        o,
+        "bitwise_identical: {}",
         if m.bitwise_identical { "yes" } else { "no" }
-    ));
+    )?;
     if m.non_finite > 0 {
-        o.push_str(&format!("non_finite_samples: {}\n", m.non_finite));
+        writeln!(o, "non_finite_samples: {}", m.non_finite)?;
     }
     super::out(&o)
 }

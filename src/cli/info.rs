@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+use std::fmt::Write as _;
+
 use clap::Args;
 use nldenoise::exrio::{self, roles};
 use nldenoise::filter::{InputShape, Pipeline};
@@ -26,50 +28,55 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     let frame = exrio::read_frame(&a.input)?;
     let dw = frame.data_window;
     let mut o = String::new();
-    o.push_str(&format!("file: {}\n", a.input.display()));
-    o.push_str(&format!(
-        "data window: ({}, {}) - ({}, {})  {} x {}\n",
+    writeln!(o, "file: {}", a.input.display())?;
+    writeln!(
+        o,
+        "data window: ({}, {}) - ({}, {})  {} x {}",
         dw.x0,
         dw.y0,
         dw.x1 - 1,
         dw.y1 - 1,
         dw.width(),
         dw.height()
-    ));
+    )?;
     if let Some(l) = &frame.layout {
-        o.push_str(&format!(
-            "layout: {}, {} compression, {} line order\n",
+        writeln!(
+            o,
+            "layout: {}, {} compression, {} line order",
             l.blocks, l.compression, l.line_order
-        ));
+        )?;
     }
     let roles = roles::detect(&a.input, &frame.channel_names(), &a.channels.options())?;
-    o.push_str(&format!("channels ({}):\n", frame.channels.len()));
+    writeln!(o, "channels ({}):", frame.channels.len())?;
     for c in &frame.channels {
-        o.push_str(&format!(
-            "  {:<24} {:<6} {}\n",
+        writeln!(
+            o,
+            "  {:<24} {:<6} {}",
             c.name,
             c.kind.to_string(),
             roles.role_of(&c.name)
-        ));
+        )?;
     }
-    o.push_str(&format!("denoiser will use:\n"));
-    o.push_str(&format!("  colour: {}\n", roles.colour.join(",")));
+    writeln!(o, "denoiser will use:")?;
+    writeln!(o, "  colour: {}", roles.colour.join(","))?;
     match &roles.variance {
         roles::VarianceRole::Sample(v) => {
-            o.push_str(&format!("  variance: sample variance {}\n", v.join(",")))
+            writeln!(o, "  variance: sample variance {}", v.join(","))?
         }
-        roles::VarianceRole::Halves(x, y) => o.push_str(&format!(
-            "  variance: (A-B)^2/4 from {} and {}\n",
+        roles::VarianceRole::Halves(x, y) => writeln!(
+            o,
+            "  variance: (A-B)^2/4 from {} and {}",
             x.join(","),
             y.join(",")
-        )),
+        )?,
     }
     if roles.features.is_empty() {
-        o.push_str(&format!("  features: none (colour-only NL-means)\n"));
+        writeln!(o, "  features: none (colour-only NL-means)")?;
     }
     for f in &roles.features {
-        o.push_str(&format!(
-            "  feature {}: {}{}\n",
+        writeln!(
+            o,
+            "  feature {}: {}{}",
             f.name,
             f.channels.join(","),
             f.variance
@@ -78,22 +85,16 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
                     " with variance {}",
                     v.join(",")
                 ))
-        ));
+        )?;
     }
     if roles.layers.is_empty() {
-        o.push_str(&format!(
-            "  light layers: none (the beauty is filtered directly)\n"
-        ));
+        writeln!(o, "  light layers: none (the beauty is filtered directly)")?;
     }
     for l in &roles.layers {
-        o.push_str(&format!(
-            "  light layer {}: {}\n",
-            l.name,
-            l.channels.join(",")
-        ));
+        writeln!(o, "  light layer {}: {}", l.name, l.channels.join(","))?;
     }
     for n in &roles.notes {
-        o.push_str(&format!("  note: {n}\n"));
+        writeln!(o, "  note: {n}")?;
     }
     if a.plan {
         let params = a.filter.params()?;
@@ -105,9 +106,9 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
                 .collect(),
             layers: roles.layers.len(),
         };
-        o.push_str(&format!("plan:\n"));
+        writeln!(o, "plan:")?;
         for line in Pipeline::new(params, inputs_shape).describe() {
-            o.push_str(&format!("  {line}\n"));
+            writeln!(o, "  {line}")?;
         }
     }
     super::out(&o)

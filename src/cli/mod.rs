@@ -64,6 +64,9 @@ pub struct FilterArgs {
     /// Variance prefilter radius rho: v' = max(v, box_rho(v)); 0 turns it off.
     #[arg(long, default_value_t = Params::default().variance_prefilter_radius)]
     pub variance_prefilter: usize,
+    /// Radius of the variance prefilter applied to feature variances; 0 turns it off.
+    #[arg(long, default_value_t = Params::default().feature_variance_prefilter_radius)]
+    pub feature_variance_prefilter: usize,
     /// Use feature variances in the feature distance (Rousselle 2013).
     #[arg(long, default_value_t = Params::default().feature_variance, action = clap::ArgAction::Set)]
     pub feature_variance: bool,
@@ -90,6 +93,7 @@ impl FilterArgs {
             tau: self.tau,
             variance_prefilter_radius: self.variance_prefilter,
             feature_variance: self.feature_variance,
+            feature_variance_prefilter_radius: self.feature_variance_prefilter,
             feature_prefilter: FeaturePrefilter {
                 search_radius: self.feature_prefilter_radius,
                 patch_radius: self.feature_prefilter_patch,
@@ -112,7 +116,8 @@ pub struct ChannelArgs {
     #[arg(long, default_value = "auto")]
     pub features: Selection,
     /// Light layers filtered separately and summed: auto (direct+indirect), none, or a list.
-    #[arg(long, default_value = "auto")]
+    /// Off by default: measured worse than filtering the beauty at 16 spp (docs/quality.md).
+    #[arg(long, default_value = "none")]
     pub layers: Selection,
     #[arg(long = "map", value_name = "ROLE=CH,...", help = MAP_HELP)]
     pub maps: Vec<String>,

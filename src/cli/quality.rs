@@ -83,7 +83,7 @@ fn main_configs(default: Params) -> Vec<Config> {
         config(
             "default (`nldenoise denoise` with no options)",
             Auto,
-            Auto,
+            None,
             VA,
             default,
         ),
@@ -102,17 +102,26 @@ fn main_configs(default: Params) -> Vec<Config> {
             slides(),
         ),
         config("joint + layers, slides", Auto, Auto, VA, slides()),
-        config("colour-only, default parameters", None, None, VA, default),
-        config("joint, default parameters", Auto, None, VA, default),
+        config(
+            "joint + layers, default parameters",
+            Auto,
+            Auto,
+            VA,
+            default,
+        ),
     ]
 }
 
+/// One sweep per default that was chosen by measurement; each varies one
+/// setting around the defaults.
 fn sweep_configs(default: Params) -> Vec<Config> {
     use Selection::{Auto, List, None};
+    let va = VarianceChoice::Auto;
+    let list = |s: &str| List(s.split(',').map(str::to_string).collect());
     let mut v = Vec::new();
     for var in [VarianceChoice::Sample, VarianceChoice::Halves] {
         for rho in [0, 1, 2, 3] {
-            let name = format!("colour-only, {var:?} variance, rho={rho}").to_lowercase();
+            let name = format!("rho: colour-only, {var:?} variance, rho={rho}").to_lowercase();
             v.push(config(
                 &name,
                 None,
@@ -125,64 +134,67 @@ fn sweep_configs(default: Params) -> Vec<Config> {
             ));
         }
     }
-    for k in [0.35f32, 0.45, 0.55, 0.7] {
+    for rho in [0, 2] {
         v.push(config(
-            &format!("colour-only, k={k}"),
+            &format!("rho: default guides, rho={rho}"),
+            Auto,
             None,
-            None,
-            VarianceChoice::Auto,
+            va,
             Params {
-                strength: k,
+                variance_prefilter_radius: rho,
                 ..default
             },
         ));
     }
-    let list = |s: &str| List(s.split(',').map(str::to_string).collect());
     for (name, feats) in [
+        ("none", None),
         ("albedo", list("albedo")),
         ("albedo,N", list("albedo,N")),
-        ("albedo,N,Z", Auto),
+        ("Z", list("Z")),
     ] {
-        for fv in [false, true] {
-            v.push(config(
-                &format!(
-                    "joint {name}, feature variance {}",
-                    if fv { "on" } else { "off" }
-                ),
-                feats.clone(),
-                None,
-                VarianceChoice::Auto,
-                Params {
-                    feature_variance: fv,
-                    ..default
-                },
-            ));
-        }
-    }
-    for r in [3usize, 5] {
         v.push(config(
-            &format!("joint albedo,N,Z, feature prefilter r={r} f=2"),
+            &format!("features: {name}"),
+            feats,
+            None,
+            va,
+            default,
+        ));
+    }
+    v.push(config(
+        "feature variance terms off",
+        Auto,
+        None,
+        va,
+        Params {
+            feature_variance: false,
+            ..default
+        },
+    ));
+    for frho in [0, 2] {
+        v.push(config(
+            &format!("feature variance prefilter {frho}"),
             Auto,
             None,
-            VarianceChoice::Auto,
+            va,
             Params {
-                feature_prefilter: FeaturePrefilter {
-                    search_radius: r,
-                    patch_radius: 2,
-                    strength: 0.45,
-                },
+                feature_variance_prefilter_radius: frho,
                 ..default
             },
         ));
     }
-    for kf in [0.6f32, 1.0, 2.0] {
+    for (r, f) in [(0, 2), (5, 3)] {
+        let fp = FeaturePrefilter {
+            search_radius: r,
+            patch_radius: f,
+            ..default.feature_prefilter
+        };
         v.push(config(
-            &format!("joint albedo,N,Z + layers, kf={kf}"),
+            &format!("feature prefilter r={r} f={f}"),
             Auto,
-            Auto,
-            VarianceChoice::Auto,
+            None,
+            va,
             Params {
-                feature_strength: kf,
+                feature_prefilter: fp,
                 ..default
             },
         ));

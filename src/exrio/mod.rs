@@ -333,10 +333,7 @@ pub fn write_frame(
     }
     let dw = frame.data_window;
     let size = Vec2(dw.width(), dw.height());
-    let mut layer_attrs = frame
-        .layer_attributes
-        .clone()
-        .unwrap_or_else(LayerAttributes::default);
+    let mut layer_attrs = frame.layer_attributes.clone().unwrap_or_default();
     layer_attrs.layer_position = Vec2(dw.x0 as i32, dw.y0 as i32);
     let encoding = Encoding {
         compression: opts.compression.to_exr(),

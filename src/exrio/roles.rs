@@ -494,6 +494,23 @@ pub fn detect(
             ));
         }
     }
+    if opts.layers == Selection::None {
+        let present: Vec<&str> = AUTO_LAYERS
+            .iter()
+            .copied()
+            .filter(|l| {
+                colour
+                    .iter()
+                    .all(|c| names.has(&format!("{l}.{}", leaf(c))))
+            })
+            .collect();
+        if !present.is_empty() {
+            notes.push(format!(
+                "light layers {} present but not used (--layers auto filters them separately)",
+                present.join(",")
+            ));
+        }
+    }
     if let Some(k) = maps.keys().next() {
         return Err(err(
             path,

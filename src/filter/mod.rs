@@ -52,6 +52,8 @@ pub struct Params {
     pub tau: f32,
     /// Radius `rho` of the variance prefilter `max(v, box_rho(v))`; 0 = off.
     pub variance_prefilter_radius: usize,
+    /// Radius of the same prefilter applied to feature variances; 0 = off.
+    pub feature_variance_prefilter_radius: usize,
     /// Use feature variances in the feature distance when present (Rousselle 2013).
     pub feature_variance: bool,
     /// NL-means prefilter of features that carry a variance.
@@ -69,9 +71,10 @@ impl Default for Params {
             feature_strength: 0.6,
             tau: 1e-3,
             variance_prefilter_radius: 1,
+            feature_variance_prefilter_radius: 1,
             feature_variance: true,
             feature_prefilter: FeaturePrefilter {
-                search_radius: 0,
+                search_radius: 3,
                 patch_radius: 2,
                 strength: 0.45,
             },
@@ -107,6 +110,10 @@ impl Params {
             ("patch radius", self.patch_radius),
             ("variance prefilter radius", self.variance_prefilter_radius),
             (
+                "feature variance prefilter radius",
+                self.feature_variance_prefilter_radius,
+            ),
+            (
                 "feature prefilter search radius",
                 self.feature_prefilter.search_radius,
             ),
@@ -140,7 +147,7 @@ impl Params {
             feature_strength: self.feature_strength,
             tau: self.tau,
             use_variance: self.feature_variance,
-            variance_prefilter_radius: self.variance_prefilter_radius,
+            variance_prefilter_radius: self.feature_variance_prefilter_radius,
             prefilter: (fp.search_radius > 0).then_some(NlmSettings {
                 search_radius: fp.search_radius,
                 patch_radius: fp.patch_radius,

@@ -88,10 +88,6 @@ pub fn nlmeans(
     outputs
 }
 
-fn slice_rows<'p>(p: &'p Plane, y: i64, x0: i64, x1: i64) -> &'p [f32] {
-    p.row(y, x0, x1)
-}
-
 fn filter_block(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
@@ -142,10 +138,10 @@ fn filter_block(
                     for (u, v) in job.values.iter().zip(&job.variance) {
                         accumulate_colour_distance(
                             acc,
-                            slice_rows(u, y, d_rect.x0, d_rect.x1),
-                            slice_rows(u, y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            slice_rows(v, y, d_rect.x0, d_rect.x1),
-                            slice_rows(v, y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            u.row(y, d_rect.x0, d_rect.x1),
+                            u.row(y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            v.row(y, d_rect.x0, d_rect.x1),
+                            v.row(y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
                             s.alpha,
                             s.eps,
                             k2,
@@ -182,7 +178,7 @@ fn filter_block(
                         *d += *w;
                     }
                     for (c, u) in job.values.iter().enumerate() {
-                        let q = slice_rows(u, y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
+                        let q = u.row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
                         let nrow = &mut num[j][c][off..off + aw];
                         for ((n, w), v) in nrow.iter_mut().zip(wrow).zip(q) {
                             *n += *w * *v;

@@ -223,10 +223,13 @@ pub fn denoise_frame(inputs: &FrameInputs, frame: Rect, params: &Params) -> Vec<
         .features
         .iter()
         .map(|feat| {
-            let var = feat
-                .variance
-                .as_ref()
-                .map(|v| prefilter_variance(&fr, &to_grid(v, frame), rho));
+            let var = feat.variance.as_ref().map(|v| {
+                prefilter_variance(
+                    &fr,
+                    &to_grid(v, frame),
+                    params.feature_variance_prefilter_radius,
+                )
+            });
             let mut values = to_grid(&feat.values, frame);
             if let (Some(v), true) = (&var, fp.search_radius > 0) {
                 values = naive_nlmeans(

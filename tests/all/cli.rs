@@ -36,7 +36,7 @@ fn denoise_improves_the_fixture_and_keeps_every_channel() {
         .arg(&input)
         .arg("-o")
         .arg(&out)
-        .args(["--threads", "2"])
+        .args(["--threads", "2", "--layers", "auto"])
         .assert()
         .success();
     assert_eq!(
@@ -104,7 +104,7 @@ fn info_prints_roles_and_plan() {
     let out = bin()
         .arg("info")
         .arg(fixture("cornell_0032spp.exr"))
-        .arg("--plan")
+        .args(["--plan", "--layers", "auto"])
         .assert()
         .success()
         .get_output()
@@ -121,6 +121,17 @@ fn info_prints_roles_and_plan() {
     ] {
         assert!(text.contains(want), "missing {want:?} in:\n{text}");
     }
+    // Without --layers, the layers are carried and a note says how to use them.
+    let out = bin()
+        .arg("info")
+        .arg(fixture("cornell_0032spp.exr"))
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let text = String::from_utf8(out).unwrap();
+    assert!(text.contains("--layers auto"), "{text}");
 }
 
 #[test]

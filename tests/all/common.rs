@@ -211,6 +211,7 @@ pub fn small_params(r: usize, f: usize) -> Params {
         search_radius: r,
         patch_radius: f,
         variance_prefilter_radius: 1,
+        feature_variance_prefilter_radius: 2,
         feature_variance: true,
         ..Params::default()
     };

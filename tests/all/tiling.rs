@@ -195,6 +195,7 @@ proptest! {
         let frame = Rect::from_origin_size(x0, y0, w, h);
         let mut params = small_params(r, f);
         params.variance_prefilter_radius = rho;
+        params.feature_variance_prefilter_radius = (rho + 1) % 3;
         params.feature_prefilter.search_radius = fp;
         params.feature_variance = fv;
         assert_tiled_equals_whole(frame, seed, ALL_KINDS[kind], &params, &[(tw, th)]);
