@@ -39,13 +39,11 @@ pub fn denoise_frame(
     let out = filter::denoise_region(&inputs, rect, rect, params)?;
     drop(inputs);
     let mut replaced = Vec::new();
-    let pairs = roles.colour.iter().zip(&out.colour).chain(
-        roles
-            .layers
-            .iter()
-            .zip(&out.layers)
-            .flat_map(|(l, p)| l.channels.iter().zip(p)),
-    );
+    let pairs = roles
+        .colour
+        .iter()
+        .zip(&out.colour)
+        .chain(roles.layers.iter().zip(&out.layers).flat_map(|(l, p)| l.channels.iter().zip(p)));
     for (name, plane) in pairs {
         frame.set_channel(if half {
             Channel::from_f32_as_half(name, plane.data())
@@ -54,11 +52,7 @@ pub fn denoise_frame(
         });
         replaced.push(name.clone());
     }
-    Ok(Report {
-        roles,
-        halo: pipeline.halo(),
-        replaced,
-    })
+    Ok(Report { roles, halo: pipeline.halo(), replaced })
 }
 
 /// Read `input`, denoise it, and write `output` atomically.
@@ -75,4 +69,43 @@ pub fn denoise_file(
     let report = denoise_frame(&mut frame, input, opts, params, half)?;
     exrio::write_frame(output, &frame, write)?;
     Ok(report)
+}
+
+/// Stream `input` to `output` through the tiled engine in bounded memory.
+///
+/// The output holds every input channel; the denoised ones are `f32` (or
+/// `f16` with `opts.half`), the others keep their type and bits. Written to a
+/// temporary file and renamed into place when complete.
+pub fn denoise_file_streaming(
+    input: &Path,
+    output: &Path,
+    roles_opts: &RoleOptions,
+    params: &Params,
+    opts: &crate::engine::StreamOptions,
+    compression: exrio::OutputCompression,
+) -> Result<(Report, crate::engine::StreamReport), Error> {
+    use crate::engine::{self, RowSource};
+    use exrio::stream::{ExrSink, ExrSource, SinkChannel};
+    params.validate()?;
+    let mut source = ExrSource::open(input)?;
+    let names = source.channel_names();
+    let roles = roles::detect(input, &names, roles_opts)?;
+    let outputs = roles.outputs();
+    let channels: Vec<SinkChannel> = names
+        .iter()
+        .zip(source.kinds())
+        .map(|(n, &k)| SinkChannel {
+            name: n.clone(),
+            kind: if outputs.contains(n) {
+                if opts.half { exrio::SampleKind::F16 } else { exrio::SampleKind::F32 }
+            } else {
+                k
+            },
+        })
+        .collect();
+    let mut opts = *opts;
+    opts.out_block_rows = compression.to_exr().scan_lines_per_block();
+    let mut sink = ExrSink::create(output, source.data_window(), &channels, compression, Some(source.header()))?;
+    let stream = engine::denoise_stream(&mut source, &mut sink, &roles, params, &opts)?;
+    Ok((Report { halo: stream.halo, replaced: outputs, roles }, stream))
 }

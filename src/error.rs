@@ -30,6 +30,19 @@ pub enum Error {
         /// The channels present, comma-separated.
         found: String,
     },
+    /// The memory limit is below what the smallest schedule needs.
+    #[error(
+        "memory limit {limit} bytes is below the minimum of {needed} bytes this frame needs (smallest tiles); raise --memory-limit"
+    )]
+    Budget {
+        /// Bytes the smallest schedule needs.
+        needed: u64,
+        /// The limit given.
+        limit: u64,
+    },
+    /// A worker stopped unexpectedly (a bug); the run was abandoned cleanly.
+    #[error("internal error: {0}")]
+    Internal(String),
     /// An I/O error on a path.
     #[error("{path}: {source}")]
     Io {

@@ -21,12 +21,7 @@ pub struct Rect {
 impl Rect {
     /// A rectangle from its origin and size.
     pub fn from_origin_size(x: i64, y: i64, width: usize, height: usize) -> Rect {
-        Rect {
-            x0: x,
-            y0: y,
-            x1: x + width as i64,
-            y1: y + height as i64,
-        }
+        Rect { x0: x, y0: y, x1: x + width as i64, y1: y + height as i64 }
     }
 
     /// Width in pixels (0 when empty).
@@ -52,22 +47,12 @@ impl Rect {
     /// The rectangle grown by `radius` pixels on every side.
     pub fn expand(&self, radius: usize) -> Rect {
         let r = radius as i64;
-        Rect {
-            x0: self.x0 - r,
-            y0: self.y0 - r,
-            x1: self.x1 + r,
-            y1: self.y1 + r,
-        }
+        Rect { x0: self.x0 - r, y0: self.y0 - r, x1: self.x1 + r, y1: self.y1 + r }
     }
 
     /// The rectangle moved by `(dx, dy)`.
     pub fn translate(&self, dx: i64, dy: i64) -> Rect {
-        Rect {
-            x0: self.x0 + dx,
-            y0: self.y0 + dy,
-            x1: self.x1 + dx,
-            y1: self.y1 + dy,
-        }
+        Rect { x0: self.x0 + dx, y0: self.y0 + dy, x1: self.x1 + dx, y1: self.y1 + dy }
     }
 
     /// Intersection (possibly empty).
@@ -82,11 +67,7 @@ impl Rect {
 
     /// True when `other` lies inside `self` (an empty `other` always does).
     pub fn contains_rect(&self, other: &Rect) -> bool {
-        other.is_empty()
-            || (other.x0 >= self.x0
-                && other.y0 >= self.y0
-                && other.x1 <= self.x1
-                && other.y1 <= self.y1)
+        other.is_empty() || (other.x0 >= self.x0 && other.y0 >= self.y0 && other.x1 <= self.x1 && other.y1 <= self.y1)
     }
 
     /// True when pixel `(x, y)` lies inside.
@@ -107,12 +88,7 @@ impl Rect {
         let mut y = self.y0;
         while y < self.y1 {
             let y1 = (y + rows).min(self.y1);
-            out.push(Rect {
-                x0: self.x0,
-                y0: y,
-                x1: self.x1,
-                y1,
-            });
+            out.push(Rect { x0: self.x0, y0: y, x1: self.x1, y1 });
             y = y1;
         }
         out
@@ -128,12 +104,7 @@ impl Rect {
             let mut x = self.x0;
             while x < self.x1 {
                 let x1 = (x + w).min(self.x1);
-                out.push(Rect {
-                    x0: x,
-                    y0: y,
-                    x1,
-                    y1,
-                });
+                out.push(Rect { x0: x, y0: y, x1, y1 });
                 x = x1;
             }
             y = y1;
@@ -150,15 +121,7 @@ mod tests {
     fn valid_for_offset_is_frame_minus_shift() {
         let f = Rect::from_origin_size(-3, 2, 10, 5);
         let v = f.valid_for_offset(2, -1);
-        assert_eq!(
-            v,
-            Rect {
-                x0: -3,
-                y0: 3,
-                x1: 5,
-                y1: 7
-            }
-        );
+        assert_eq!(v, Rect { x0: -3, y0: 3, x1: 5, y1: 7 });
         for y in f.y0..f.y1 {
             for x in f.x0..f.x1 {
                 assert_eq!(v.contains(x, y), f.contains(x + 2, y - 1));

@@ -16,10 +16,7 @@ pub struct Plane {
 impl Plane {
     /// A plane filled with `value`.
     pub fn filled(rect: Rect, value: f32) -> Plane {
-        Plane {
-            rect,
-            data: vec![value; rect.area()],
-        }
+        Plane { rect, data: vec![value; rect.area()] }
     }
 
     /// A plane from row-major samples; `None` when the length does not match.
@@ -60,11 +57,7 @@ impl Plane {
 
     #[inline]
     fn index(&self, x: i64, y: i64) -> usize {
-        debug_assert!(
-            self.rect.contains(x, y),
-            "({x},{y}) outside {:?}",
-            self.rect
-        );
+        debug_assert!(self.rect.contains(x, y), "({x},{y}) outside {:?}", self.rect);
         (y - self.rect.y0) as usize * self.rect.width() + (x - self.rect.x0) as usize
     }
 
@@ -90,11 +83,7 @@ impl Plane {
 
     /// A copy of the samples inside `rect` (which must lie inside the plane).
     pub fn crop(&self, rect: Rect) -> Plane {
-        assert!(
-            self.rect.contains_rect(&rect),
-            "crop {rect:?} outside {:?}",
-            self.rect
-        );
+        assert!(self.rect.contains_rect(&rect), "crop {rect:?} outside {:?}", self.rect);
         let mut data = Vec::with_capacity(rect.area());
         for y in rect.y0..rect.y1 {
             data.extend_from_slice(self.row(y, rect.x0, rect.x1));
@@ -115,9 +104,96 @@ impl Plane {
 
     /// Apply `f` to every sample.
     pub fn map(&self, f: impl Fn(f32) -> f32) -> Plane {
-        Plane {
-            rect: self.rect,
-            data: self.data.iter().map(|&v| f(v)).collect(),
+        Plane { rect: self.rect, data: self.data.iter().map(|&v| f(v)).collect() }
+    }
+}
+
+/// Samples of one channel in their storage type (carried channels keep their
+/// exact bits; denoised channels are `F32`, or `F16` when asked).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Samples {
+    /// 16-bit floats.
+    F16(Vec<half::f16>),
+    /// 32-bit floats.
+    F32(Vec<f32>),
+    /// 32-bit unsigned integers.
+    U32(Vec<u32>),
+}
+
+impl Samples {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        match self {
+            Samples::F16(v) => v.len(),
+            Samples::F32(v) => v.len(),
+            Samples::U32(v) => v.len(),
         }
+    }
+
+    /// True when there is no sample.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Bytes per sample.
+    pub fn bytes_per_sample(&self) -> usize {
+        match self {
+            Samples::F16(_) => 2,
+            _ => 4,
+        }
+    }
+
+    /// The samples as `f32`.
+    pub fn to_f32(&self) -> Vec<f32> {
+        match self {
+            Samples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            Samples::F32(v) => v.clone(),
+            Samples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+        }
+    }
+
+    /// An empty buffer of the same type with room for `n` samples.
+    pub fn empty_like(&self, n: usize) -> Samples {
+        match self {
+            Samples::F16(_) => Samples::F16(Vec::with_capacity(n)),
+            Samples::F32(_) => Samples::F32(Vec::with_capacity(n)),
+            Samples::U32(_) => Samples::U32(Vec::with_capacity(n)),
+        }
+    }
+
+    /// Append `other[range]` (same type).
+    pub fn extend_from(&mut self, other: &Samples, range: std::ops::Range<usize>) {
+        match (self, other) {
+            (Samples::F16(a), Samples::F16(b)) => a.extend_from_slice(&b[range]),
+            (Samples::F32(a), Samples::F32(b)) => a.extend_from_slice(&b[range]),
+            (Samples::U32(a), Samples::U32(b)) => a.extend_from_slice(&b[range]),
+            _ => panic!("extend_from: sample types differ"),
+        }
+    }
+}
+
+/// Consecutive full-width rows of one channel: samples over `rect`, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelRows {
+    /// The rows (and columns) covered.
+    pub rect: Rect,
+    /// The samples, `rect.area()` of them.
+    pub samples: Samples,
+}
+
+impl ChannelRows {
+    /// The rows as an `f32` plane.
+    pub fn to_plane(&self) -> Plane {
+        Plane::from_vec(self.rect, self.samples.to_f32()).expect("rows hold rect.area() samples")
+    }
+
+    /// The sub-range of rows `[y0, y1)` (full width).
+    pub fn rows(&self, y0: i64, y1: i64) -> ChannelRows {
+        let w = self.rect.width();
+        let a = (y0 - self.rect.y0) as usize * w;
+        let b = (y1 - self.rect.y0) as usize * w;
+        let mut s = self.samples.empty_like(b - a);
+        s.extend_from(&self.samples, a..b);
+        ChannelRows { rect: Rect { y0, y1, ..self.rect }, samples: s }
     }
 }

@@ -4,6 +4,7 @@
 //! Architecture (dependencies flow downward):
 //!
 //! * [`api`]: entry points (denoise a frame in memory or a file);
+//! * [`engine`]: the streaming tiled engine (threads, bounded queues, memory budget);
 //! * [`exrio`]: every contact with the `exr` crate, channel roles, frame I/O;
 //! * [`filter`]: the pure filter math (SPEC §1–5) on any rectangle of a frame;
 //! * [`geom`], [`image`]: frame-coordinate rectangles and planes;
@@ -29,6 +30,7 @@
 #![deny(missing_docs)]
 
 pub mod api;
+pub mod engine;
 pub mod error;
 pub mod exrio;
 pub mod filter;

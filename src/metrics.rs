@@ -43,11 +43,7 @@ pub fn compare(xs: &[&[f32]], refs: &[&[f32]]) -> Metrics {
     Metrics {
         rel_mse: rel / n_f,
         mse,
-        psnr: if mse > 0.0 {
-            10.0 * (1.0 / mse).log10()
-        } else {
-            f64::INFINITY
-        },
+        psnr: if mse > 0.0 { 10.0 * (1.0 / mse).log10() } else { f64::INFINITY },
         max_abs_diff: max_abs,
         bitwise_identical: identical,
         non_finite: bad,

@@ -38,11 +38,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     for ch in &a.channels {
         let get = |f: &exrio::Frame, p: &PathBuf| {
             f.plane(ch).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{}: no channel {ch:?} (channels: {})",
-                    p.display(),
-                    f.channel_names().join(", ")
-                )
+                anyhow::anyhow!("{}: no channel {ch:?} (channels: {})", p.display(), f.channel_names().join(", "))
             })
         };
         xs.push(get(&fa, &a.a)?);
@@ -57,11 +53,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     writeln!(o, "MSE: {:.6e}", m.mse)?;
     writeln!(o, "PSNR: {:.3}", m.psnr)?;
     writeln!(o, "max_abs_diff: {:.6e}", m.max_abs_diff)?;
-    writeln!(
-        o,
-        "bitwise_identical: {}",
-        if m.bitwise_identical { "yes" } else { "no" }
-    )?;
+    writeln!(o, "bitwise_identical: {}", if m.bitwise_identical { "yes" } else { "no" })?;
     if m.non_finite > 0 {
         writeln!(o, "non_finite_samples: {}", m.non_finite)?;
     }

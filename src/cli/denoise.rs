@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use clap::Args;
 use nldenoise::api;
+use nldenoise::engine::{StreamOptions, budget};
 use nldenoise::exrio::{self, OutputCompression, WriteOptions};
 use tracing::info;
 
@@ -28,12 +29,45 @@ pub struct DenoiseArgs {
     /// Write the denoised channels as half floats (other channels keep their type).
     #[arg(long)]
     pub half: bool,
+    /// Tile size in pixels for the streaming engine; 0 filters the whole frame in memory.
+    #[arg(long, default_value_t = 256)]
+    pub tile_size: usize,
+    /// Memory limit for the streaming engine (e.g. 512M, 4G); default: half of the available memory.
+    #[arg(long, value_parser = budget::parse_size)]
+    pub memory_limit: Option<u64>,
     /// Output compression.
     #[arg(long, value_enum, default_value_t = OutputCompression::Zip)]
     pub compression: OutputCompression,
 }
 
 pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    if a.tile_size == 0 {
+        whole_frame(&a)?;
+    } else {
+        let params = a.filter.params()?;
+        let opts = StreamOptions {
+            tile_size: a.tile_size,
+            threads: a.threads,
+            memory_limit: a.memory_limit.unwrap_or_else(budget::default_limit_bytes),
+            half: a.half,
+            ..StreamOptions::default()
+        };
+        let (report, _) =
+            api::denoise_file_streaming(&a.input, &a.output, &a.channels.options(), &params, &opts, a.compression)?;
+        for n in &report.roles.notes {
+            info!("{}: {n}", a.input.display());
+        }
+    }
+    info!("{} -> {} in {:.2}s", a.input.display(), a.output.display(), t0.elapsed().as_secs_f64());
+    if let Some(peak) = budget::peak_rss_bytes() {
+        info!("peak resident memory: {:.1} MiB", peak as f64 / 1048576.0);
+    }
+    Ok(())
+}
+
+/// `--tile-size 0`: read the whole frame, filter it in memory, write it.
+fn whole_frame(a: &DenoiseArgs) -> anyhow::Result<()> {
     let params = a.filter.params()?;
     let pool = thread_pool(a.threads)?;
     let t0 = Instant::now();
@@ -48,11 +82,9 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
         t0.elapsed().as_secs_f64()
     );
     let t1 = Instant::now();
-    let report = pool.install(|| {
-        api::denoise_frame(&mut frame, &a.input, &a.channels.options(), &params, a.half)
-    })?;
+    let report = pool.install(|| api::denoise_frame(&mut frame, &a.input, &a.channels.options(), &params, a.half))?;
     for n in &report.roles.notes {
-        tracing::warn!("{}: {n}", a.input.display());
+        info!("{}: {n}", a.input.display());
     }
     info!(
         "filtered in {:.2}s on {} threads (halo {} px, {} features, {} layers)",
@@ -63,18 +95,7 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
         report.roles.layers.len()
     );
     let t2 = Instant::now();
-    exrio::write_frame(
-        &a.output,
-        &frame,
-        &WriteOptions {
-            compression: a.compression,
-            ..Default::default()
-        },
-    )?;
-    info!(
-        "wrote {} in {:.2}s",
-        a.output.display(),
-        t2.elapsed().as_secs_f64()
-    );
+    exrio::write_frame(&a.output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
+    info!("wrote {} in {:.2}s", a.output.display(), t2.elapsed().as_secs_f64());
     Ok(())
 }

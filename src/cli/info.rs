@@ -40,35 +40,20 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
         dw.height()
     )?;
     if let Some(l) = &frame.layout {
-        writeln!(
-            o,
-            "layout: {}, {} compression, {} line order",
-            l.blocks, l.compression, l.line_order
-        )?;
+        writeln!(o, "layout: {}, {} compression, {} line order", l.blocks, l.compression, l.line_order)?;
     }
     let roles = roles::detect(&a.input, &frame.channel_names(), &a.channels.options())?;
     writeln!(o, "channels ({}):", frame.channels.len())?;
     for c in &frame.channels {
-        writeln!(
-            o,
-            "  {:<24} {:<6} {}",
-            c.name,
-            c.kind.to_string(),
-            roles.role_of(&c.name)
-        )?;
+        writeln!(o, "  {:<24} {:<6} {}", c.name, c.kind.to_string(), roles.role_of(&c.name))?;
     }
     writeln!(o, "denoiser will use:")?;
     writeln!(o, "  colour: {}", roles.colour.join(","))?;
     match &roles.variance {
-        roles::VarianceRole::Sample(v) => {
-            writeln!(o, "  variance: sample variance {}", v.join(","))?
+        roles::VarianceRole::Sample(v) => writeln!(o, "  variance: sample variance {}", v.join(","))?,
+        roles::VarianceRole::Halves(x, y) => {
+            writeln!(o, "  variance: (A-B)^2/4 from {} and {}", x.join(","), y.join(","))?
         }
-        roles::VarianceRole::Halves(x, y) => writeln!(
-            o,
-            "  variance: (A-B)^2/4 from {} and {}",
-            x.join(","),
-            y.join(",")
-        )?,
     }
     if roles.features.is_empty() {
         writeln!(o, "  features: none (colour-only NL-means)")?;
@@ -79,12 +64,7 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
             "  feature {}: {}{}",
             f.name,
             f.channels.join(","),
-            f.variance
-                .as_ref()
-                .map_or(" (no variance)".to_string(), |v| format!(
-                    " with variance {}",
-                    v.join(",")
-                ))
+            f.variance.as_ref().map_or(" (no variance)".to_string(), |v| format!(" with variance {}", v.join(",")))
         )?;
     }
     if roles.layers.is_empty() {
@@ -99,11 +79,7 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     if a.plan {
         let params = a.filter.params()?;
         let inputs_shape = InputShape {
-            feature_has_variance: roles
-                .features
-                .iter()
-                .map(|f| f.variance.is_some())
-                .collect(),
+            feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
             layers: roles.layers.len(),
         };
         writeln!(o, "plan:")?;

@@ -2,6 +2,7 @@
 //! denoised frame atomically, and mapping channel names to roles ([`roles`]).
 
 pub mod roles;
+pub mod stream;
 
 use std::collections::HashMap;
 use std::fs::File;
@@ -50,11 +51,7 @@ pub struct Channel {
 impl Channel {
     /// A channel from `f32` samples (stored as `F32`).
     pub fn from_f32(name: impl Into<String>, samples: Vec<f32>) -> Channel {
-        Channel {
-            name: name.into(),
-            kind: SampleKind::F32,
-            samples: FlatSamples::F32(samples),
-        }
+        Channel { name: name.into(), kind: SampleKind::F32, samples: FlatSamples::F32(samples) }
     }
 
     /// A channel from `f32` samples stored as `F16`.
@@ -103,13 +100,7 @@ pub struct Frame {
 impl Frame {
     /// A frame with no attributes (e.g. for tests and generated data).
     pub fn new(data_window: Rect, channels: Vec<Channel>) -> Frame {
-        Frame {
-            data_window,
-            channels,
-            layout: None,
-            image_attributes: None,
-            layer_attributes: None,
-        }
+        Frame { data_window, channels, layout: None, image_attributes: None, layer_attributes: None }
     }
 
     /// Channel names in order.
@@ -124,9 +115,8 @@ impl Frame {
 
     /// The channel named `name` as a plane over the data window.
     pub fn plane(&self, name: &str) -> Option<Plane> {
-        self.channel(name).map(|c| {
-            Plane::from_vec(self.data_window, c.to_f32()).expect("channel length checked on read")
-        })
+        self.channel(name)
+            .map(|c| Plane::from_vec(self.data_window, c.to_f32()).expect("channel length checked on read"))
     }
 
     /// Replace (or add) a channel's samples.
@@ -142,10 +132,7 @@ impl Frame {
 }
 
 fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::Exr {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    }
+    Error::Exr { path: path.to_path_buf(), message: e.to_string() }
 }
 
 fn compression_name(c: Compression) -> String {
@@ -160,32 +147,20 @@ fn compression_name(c: Compression) -> String {
     }
 }
 
-/// Read a single-part, flat (non-deep) EXR frame, scanline or tiled, any line
-/// order, with f16, f32 or u32 channels. Only the largest resolution level of
-/// a mip-mapped file is read.
-pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
-        exr::error::Error::Io(io) => Error::Io {
-            path: path.to_path_buf(),
-            source: io,
-        },
-        other => exr_err(path, format!("not a readable EXR file: {other}")),
-    })?;
+/// The one header of a file we can denoise: single part, flat, full-resolution channels.
+pub(crate) fn check_supported(
+    path: &Path,
+    meta: &exr::meta::MetaData,
+) -> std::result::Result<exr::meta::header::Header, Error> {
     if meta.headers.len() != 1 {
         return Err(exr_err(
             path,
-            format!(
-                "has {} parts; only single-part EXR files are supported",
-                meta.headers.len()
-            ),
+            format!("has {} parts; only single-part EXR files are supported", meta.headers.len()),
         ));
     }
     let header = &meta.headers[0];
     if header.deep {
-        return Err(exr_err(
-            path,
-            "is a deep EXR file; only flat images are supported",
-        ));
+        return Err(exr_err(path, "is a deep EXR file; only flat images are supported"));
     }
     for ch in header.channels.list.iter() {
         if ch.sampling != Vec2(1, 1) {
@@ -198,6 +173,18 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
             ));
         }
     }
+    Ok(header.clone())
+}
+
+/// Read a single-part, flat (non-deep) EXR frame, scanline or tiled, any line
+/// order, with f16, f32 or u32 channels. Only the largest resolution level of
+/// a mip-mapped file is read.
+pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
+        exr::error::Error::Io(io) => Error::Io { path: path.to_path_buf(), source: io },
+        other => exr_err(path, format!("not a readable EXR file: {other}")),
+    })?;
+    let header = check_supported(path, &meta)?;
     let layout = Layout {
         blocks: match header.blocks {
             exr::meta::BlockDescription::ScanLines => "scanline".into(),
@@ -218,8 +205,7 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
         .map_err(|e| exr_err(path, format!("could not decode: {e}")))?;
     let layer = image.layer_data;
     let pos = layer.attributes.layer_position;
-    let data_window =
-        Rect::from_origin_size(pos.0 as i64, pos.1 as i64, layer.size.0, layer.size.1);
+    let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, layer.size.0, layer.size.1);
     let mut channels = Vec::with_capacity(layer.channel_data.list.len());
     for ch in layer.channel_data.list {
         let kind = match &ch.sample_data {
@@ -230,19 +216,10 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
         if ch.sample_data.len() != data_window.area() {
             return Err(exr_err(
                 path,
-                format!(
-                    "channel {} has {} samples, expected {}",
-                    ch.name,
-                    ch.sample_data.len(),
-                    data_window.area()
-                ),
+                format!("channel {} has {} samples, expected {}", ch.name, ch.sample_data.len(), data_window.area()),
             ));
         }
-        channels.push(Channel {
-            name: ch.name.to_string(),
-            kind,
-            samples: ch.sample_data,
-        });
+        channels.push(Channel { name: ch.name.to_string(), kind, samples: ch.sample_data });
     }
     Ok(Frame {
         data_window,
@@ -272,7 +249,7 @@ pub enum OutputCompression {
 }
 
 impl OutputCompression {
-    fn to_exr(self) -> Compression {
+    pub(crate) fn to_exr(self) -> Compression {
         match self {
             OutputCompression::None => Compression::Uncompressed,
             OutputCompression::Rle => Compression::RLE,
@@ -296,17 +273,14 @@ pub struct WriteOptions {
 }
 
 /// A temporary file beside `path` that is renamed over it on success and removed otherwise.
-struct AtomicTarget {
-    tmp: PathBuf,
-    done: bool,
+pub(crate) struct AtomicTarget {
+    pub(crate) tmp: PathBuf,
+    pub(crate) done: bool,
 }
 
 impl AtomicTarget {
-    fn new(path: &Path) -> AtomicTarget {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "out.exr".into());
+    pub(crate) fn new(path: &Path) -> AtomicTarget {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out.exr".into());
         let tmp = path.with_file_name(format!(".{name}.nldenoise-{}.tmp", std::process::id()));
         AtomicTarget { tmp, done: false }
     }
@@ -323,11 +297,7 @@ impl Drop for AtomicTarget {
 /// Write a frame. The file appears at `path` only once completely written
 /// (written to a temporary file in the same folder, synced, then renamed), so
 /// a failure never leaves a partial file at `path`.
-pub fn write_frame(
-    path: &Path,
-    frame: &Frame,
-    opts: &WriteOptions,
-) -> std::result::Result<(), Error> {
+pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::result::Result<(), Error> {
     if frame.channels.is_empty() {
         return Err(exr_err(path, "refusing to write a frame with no channels"));
     }
@@ -341,43 +311,27 @@ pub fn write_frame(
             Some((w, h)) => Blocks::Tiles(Vec2(w, h)),
             None => Blocks::ScanLines,
         },
-        line_order: if opts.decreasing {
-            LineOrder::Decreasing
-        } else {
-            LineOrder::Increasing
-        },
+        line_order: if opts.decreasing { LineOrder::Decreasing } else { LineOrder::Increasing },
     };
-    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = frame
-        .channels
-        .iter()
-        .map(|c| AnyChannel::new(c.name.as_str(), c.samples.clone()))
-        .collect();
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
+        frame.channels.iter().map(|c| AnyChannel::new(c.name.as_str(), c.samples.clone())).collect();
     let layer = Layer::new(size, layer_attrs, encoding, AnyChannels::sort(list));
     let mut image = Image::from_layer(layer);
     if let Some(attrs) = &frame.image_attributes {
         image.attributes = attrs.clone();
     } else {
-        image.attributes.display_window =
-            IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size);
+        image.attributes.display_window = IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size);
     }
 
     let target = AtomicTarget::new(path);
-    let io_err = |p: &Path, e: std::io::Error| Error::Io {
-        path: p.to_path_buf(),
-        source: e,
-    };
+    let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.to_path_buf(), source: e };
     let file = File::create(&target.tmp).map_err(|e| io_err(path, e))?;
     let mut writer = BufWriter::new(file);
-    image
-        .write()
-        .to_buffered(&mut writer)
-        .map_err(|e| match e {
-            exr::error::Error::Io(io) => io_err(path, io),
-            other => exr_err(path, format!("could not encode: {other}")),
-        })?;
-    let file = writer
-        .into_inner()
-        .map_err(|e| io_err(path, e.into_error()))?;
+    image.write().to_buffered(&mut writer).map_err(|e| match e {
+        exr::error::Error::Io(io) => io_err(path, io),
+        other => exr_err(path, format!("could not encode: {other}")),
+    })?;
+    let file = writer.into_inner().map_err(|e| io_err(path, e.into_error()))?;
     file.sync_all().map_err(|e| io_err(path, e))?;
     drop(file);
     std::fs::rename(&target.tmp, path).map_err(|e| io_err(path, e))?;
@@ -388,9 +342,5 @@ pub fn write_frame(
 
 /// Summary of the channels for reports: name → kind.
 pub fn channel_kinds(frame: &Frame) -> HashMap<String, SampleKind> {
-    frame
-        .channels
-        .iter()
-        .map(|c| (c.name.clone(), c.kind))
-        .collect()
+    frame.channels.iter().map(|c| (c.name.clone(), c.kind)).collect()
 }

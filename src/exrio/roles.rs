@@ -46,11 +46,8 @@ impl std::str::FromStr for Selection {
             "auto" => Selection::Auto,
             "none" => Selection::None,
             list => {
-                let names: Vec<String> = list
-                    .split(',')
-                    .map(|s| s.trim().to_string())
-                    .filter(|s| !s.is_empty())
-                    .collect();
+                let names: Vec<String> =
+                    list.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
                 if names.is_empty() {
                     return Err("expected auto, none or a comma-separated list of names".into());
                 }
@@ -137,14 +134,7 @@ impl Names<'_> {
     /// Channels of group `g` (`g.X`, not deeper), in file order.
     fn group(&self, g: &str) -> Vec<String> {
         let prefix = format!("{g}.");
-        self.all
-            .iter()
-            .filter(|c| {
-                c.strip_prefix(&prefix)
-                    .is_some_and(|rest| !rest.contains('.'))
-            })
-            .cloned()
-            .collect()
+        self.all.iter().filter(|c| c.strip_prefix(&prefix).is_some_and(|rest| !rest.contains('.'))).cloned().collect()
     }
 }
 
@@ -179,9 +169,7 @@ fn variance_candidates(channels: &[String]) -> Vec<Vec<String>> {
 }
 
 fn find_variance(names: &Names<'_>, channels: &[String]) -> Option<Vec<String>> {
-    variance_candidates(channels)
-        .into_iter()
-        .find(|c| names.all_present(c))
+    variance_candidates(channels).into_iter().find(|c| names.all_present(c))
 }
 
 /// Feature names tried by `--features auto`, with the channel groups that carry them.
@@ -203,34 +191,18 @@ fn resolve_feature_channels(names: &Names<'_>, name: &str) -> Option<Vec<String>
 }
 
 fn err(path: &Path, names: &[String], message: impl Into<String>) -> Error {
-    Error::Channels {
-        path: path.to_path_buf(),
-        message: message.into(),
-        found: names.join(", "),
-    }
+    Error::Channels { path: path.to_path_buf(), message: message.into(), found: names.join(", ") }
 }
 
 /// Choose the roles of a frame's channels.
-pub fn detect(
-    path: &Path,
-    channel_names: &[String],
-    opts: &RoleOptions,
-) -> Result<ChannelRoles, Error> {
+pub fn detect(path: &Path, channel_names: &[String], opts: &RoleOptions) -> Result<ChannelRoles, Error> {
     let names = Names { all: channel_names };
     let mut maps: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for m in &opts.maps {
-        let (role, list) = m.split_once('=').ok_or_else(|| {
-            err(
-                path,
-                channel_names,
-                format!("--map {m:?} is not ROLE=CH[,CH...]; {MAP_HELP}"),
-            )
-        })?;
-        let list: Vec<String> = list
-            .split(',')
-            .map(|s| s.trim().to_string())
-            .filter(|s| !s.is_empty())
-            .collect();
+        let (role, list) = m
+            .split_once('=')
+            .ok_or_else(|| err(path, channel_names, format!("--map {m:?} is not ROLE=CH[,CH...]; {MAP_HELP}")))?;
+        let list: Vec<String> = list.split(',').map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
         for ch in &list {
             if !names.has(ch) {
                 return Err(err(
@@ -241,11 +213,7 @@ pub fn detect(
             }
         }
         if list.is_empty() {
-            return Err(err(
-                path,
-                channel_names,
-                format!("--map {role}= names no channel"),
-            ));
+            return Err(err(path, channel_names, format!("--map {role}= names no channel")));
         }
         maps.insert(role.to_string(), list);
     }
@@ -259,22 +227,14 @@ pub fn detect(
             if names.all_present(&rgb) {
                 rgb
             } else {
-                return Err(err(
-                    path,
-                    channel_names,
-                    "no colour channels R,G,B; name them with --map color=CH,CH,CH",
-                ));
+                return Err(err(path, channel_names, "no colour channels R,G,B; name them with --map color=CH,CH,CH"));
             }
         }
     };
     let n = colour.len();
     let check_count = |role: &str, v: &[String]| {
         if v.len() != n {
-            Err(err(
-                path,
-                channel_names,
-                format!("{role} has {} channels but the colour has {n}", v.len()),
-            ))
+            Err(err(path, channel_names, format!("{role} has {} channels but the colour has {n}", v.len())))
         } else {
             Ok(())
         }
@@ -293,11 +253,7 @@ pub fn detect(
             (names.all_present(&a) && names.all_present(&b)).then_some((a, b))
         }
         _ => {
-            return Err(err(
-                path,
-                channel_names,
-                "--map A=... and --map B=... must be given together",
-            ));
+            return Err(err(path, channel_names, "--map A=... and --map B=... must be given together"));
         }
     };
     if let Some(s) = &sample {
@@ -308,9 +264,7 @@ pub fn detect(
         check_count("half buffer B", b)?;
     }
     let variance = match (opts.variance, sample, halves) {
-        (VarianceChoice::Sample, Some(s), _) | (VarianceChoice::Auto, Some(s), _) => {
-            VarianceRole::Sample(s)
-        }
+        (VarianceChoice::Sample, Some(s), _) | (VarianceChoice::Auto, Some(s), _) => VarianceRole::Sample(s),
         (VarianceChoice::Halves, _, Some((a, b))) | (VarianceChoice::Auto, None, Some((a, b))) => {
             VarianceRole::Halves(a, b)
         }
@@ -339,20 +293,14 @@ pub fn detect(
 
     // Features.
     let mut features = Vec::new();
-    let mapped_features: Vec<String> = maps
-        .keys()
-        .filter_map(|k| k.strip_prefix("feature."))
-        .map(str::to_string)
-        .collect();
+    let mapped_features: Vec<String> =
+        maps.keys().filter_map(|k| k.strip_prefix("feature.")).map(str::to_string).collect();
     let wanted: Vec<(String, Option<Vec<String>>)> = match &opts.features {
         Selection::None => Vec::new(),
         Selection::Auto => {
             let mut v = Vec::new();
             for (_, groups) in AUTO_FEATURES {
-                if let Some(ch) = groups
-                    .iter()
-                    .find_map(|g| resolve_feature_channels(&names, g))
-                {
+                if let Some(ch) = groups.iter().find_map(|g| resolve_feature_channels(&names, g)) {
                     v.push((group_name(&ch), Some(ch)));
                 }
             }
@@ -361,10 +309,7 @@ pub fn detect(
         Selection::List(list) => list.iter().map(|l| (l.clone(), None)).collect(),
     };
     let mut seen = Vec::new();
-    for (fname, detected) in wanted
-        .into_iter()
-        .chain(mapped_features.iter().map(|m| (m.clone(), None)))
-    {
+    for (fname, detected) in wanted.into_iter().chain(mapped_features.iter().map(|m| (m.clone(), None))) {
         if seen.contains(&fname) {
             continue;
         }
@@ -394,27 +339,15 @@ pub fn detect(
             return Err(err(
                 path,
                 channel_names,
-                format!(
-                    "feature {fname}: {} variance channels for {} channels",
-                    v.len(),
-                    channels.len()
-                ),
+                format!("feature {fname}: {} variance channels for {} channels", v.len(), channels.len()),
             ));
         }
-        features.push(FeatureRole {
-            name: fname,
-            channels,
-            variance,
-        });
+        features.push(FeatureRole { name: fname, channels, variance });
     }
 
     // Layers.
     let mut layers = Vec::new();
-    let mapped_layers: Vec<String> = maps
-        .keys()
-        .filter_map(|k| k.strip_prefix("layer."))
-        .map(str::to_string)
-        .collect();
+    let mapped_layers: Vec<String> = maps.keys().filter_map(|k| k.strip_prefix("layer.")).map(str::to_string).collect();
     let (wanted, explicit): (Vec<String>, bool) = match &opts.layers {
         Selection::None => (Vec::new(), false),
         Selection::Auto => (AUTO_LAYERS.iter().map(|s| s.to_string()).collect(), false),
@@ -426,10 +359,7 @@ pub fn detect(
         let channels = match maps.remove(&format!("layer.{lname}")) {
             Some(c) => c,
             None => {
-                let ch: Vec<String> = colour
-                    .iter()
-                    .map(|c| format!("{lname}.{}", leaf(c)))
-                    .collect();
+                let ch: Vec<String> = colour.iter().map(|c| format!("{lname}.{}", leaf(c))).collect();
                 if names.all_present(&ch) {
                     ch
                 } else if is_explicit {
@@ -454,16 +384,8 @@ pub fn detect(
         match variance {
             Some(v) => {
                 check_count(&format!("variance of layer {lname}"), &v)?;
-                let l = LayerRole {
-                    name: lname.clone(),
-                    channels,
-                    variance: VarianceRole::Sample(v),
-                };
-                if is_explicit {
-                    layers.push(l)
-                } else {
-                    auto_layers.push(l)
-                }
+                let l = LayerRole { name: lname.clone(), channels, variance: VarianceRole::Sample(v) };
+                if is_explicit { layers.push(l) } else { auto_layers.push(l) }
             }
             None if is_explicit => {
                 return Err(err(
@@ -474,9 +396,7 @@ pub fn detect(
                     ),
                 ));
             }
-            None => notes.push(format!(
-                "layer {lname} found but it has no variance; layers not used"
-            )),
+            None => notes.push(format!("layer {lname} found but it has no variance; layers not used")),
         }
     }
     if !auto_layers.is_empty() {
@@ -485,11 +405,7 @@ pub fn detect(
         } else {
             notes.push(format!(
                 "only {} of the light layers {} found; layers not used",
-                auto_layers
-                    .iter()
-                    .map(|l| l.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(","),
+                auto_layers.iter().map(|l| l.name.as_str()).collect::<Vec<_>>().join(","),
                 AUTO_LAYERS.join("+")
             ));
         }
@@ -498,11 +414,7 @@ pub fn detect(
         let present: Vec<&str> = AUTO_LAYERS
             .iter()
             .copied()
-            .filter(|l| {
-                colour
-                    .iter()
-                    .all(|c| names.has(&format!("{l}.{}", leaf(c))))
-            })
+            .filter(|l| colour.iter().all(|c| names.has(&format!("{l}.{}", leaf(c)))))
             .collect();
         if !present.is_empty() {
             notes.push(format!(
@@ -512,30 +424,16 @@ pub fn detect(
         }
     }
     if let Some(k) = maps.keys().next() {
-        return Err(err(
-            path,
-            channel_names,
-            format!("--map role {k:?} is not used: {MAP_HELP}"),
-        ));
+        return Err(err(path, channel_names, format!("--map role {k:?} is not used: {MAP_HELP}")));
     }
-    Ok(ChannelRoles {
-        colour,
-        variance,
-        features,
-        layers,
-        notes,
-    })
+    Ok(ChannelRoles { colour, variance, features, layers, notes })
 }
 
 /// The name a detected feature goes by: its channel group (`albedo`, `N`), or
 /// the channel itself for a single root channel (`Z`).
 fn group_name(channels: &[String]) -> String {
     let g = group_of(&channels[0]);
-    if g.is_empty() {
-        channels[0].clone()
-    } else {
-        g.to_string()
-    }
+    if g.is_empty() { channels[0].clone() } else { g.to_string() }
 }
 
 impl ChannelRoles {
@@ -584,45 +482,60 @@ impl ChannelRoles {
         v
     }
 
+    /// Every channel the filter reads.
+    pub fn inputs_channels(&self) -> Vec<String> {
+        let mut v = self.colour.clone();
+        let var = |v: &VarianceRole| match v {
+            VarianceRole::Sample(s) => s.clone(),
+            VarianceRole::Halves(a, b) => a.iter().chain(b).cloned().collect(),
+        };
+        v.extend(var(&self.variance));
+        for f in &self.features {
+            v.extend(f.channels.iter().cloned());
+            v.extend(f.variance.iter().flatten().cloned());
+        }
+        for l in &self.layers {
+            v.extend(l.channels.iter().cloned());
+            v.extend(var(&l.variance));
+        }
+        v
+    }
+
     /// Build the filter's inputs from a frame held in memory.
     pub fn inputs(&self, frame: &Frame) -> FrameInputs {
-        let planes = |names: &[String]| {
-            names
-                .iter()
-                .map(|n| frame.plane(n).expect("role channels exist"))
-                .collect::<Vec<_>>()
-        };
-        let var = |v: &VarianceRole| match v {
+        self.inputs_with(|n| frame.plane(n).expect("role channels exist"))
+    }
+
+    /// Build the filter's inputs, getting each channel's plane from `plane`.
+    pub fn inputs_with(&self, mut plane: impl FnMut(&str) -> crate::image::Plane) -> FrameInputs {
+        let mut planes = |names: &[String]| names.iter().map(|n| plane(n)).collect::<Vec<_>>();
+        let colour_values = planes(&self.colour);
+        let var = |v: &VarianceRole, planes: &mut dyn FnMut(&[String]) -> Vec<crate::image::Plane>| match v {
             VarianceRole::Sample(s) => VarianceSource::Sample(planes(s)),
-            VarianceRole::Halves(a, b) => VarianceSource::Halves {
-                a: planes(a),
-                b: planes(b),
-            },
+            VarianceRole::Halves(a, b) => VarianceSource::Halves { a: planes(a), b: planes(b) },
         };
+        let colour_var = var(&self.variance, &mut planes);
+        let features = self
+            .features
+            .iter()
+            .map(|f| Feature {
+                name: f.name.clone(),
+                values: planes(&f.channels),
+                variance: f.variance.as_deref().map(&mut planes),
+            })
+            .collect();
+        let layers = self
+            .layers
+            .iter()
+            .map(|l| {
+                let values = planes(&l.channels);
+                Buffer { name: l.name.clone(), values, variance: var(&l.variance, &mut planes) }
+            })
+            .collect();
         FrameInputs {
-            colour: Buffer {
-                name: "beauty".into(),
-                values: planes(&self.colour),
-                variance: var(&self.variance),
-            },
-            features: self
-                .features
-                .iter()
-                .map(|f| Feature {
-                    name: f.name.clone(),
-                    values: planes(&f.channels),
-                    variance: f.variance.as_deref().map(planes),
-                })
-                .collect(),
-            layers: self
-                .layers
-                .iter()
-                .map(|l| Buffer {
-                    name: l.name.clone(),
-                    values: planes(&l.channels),
-                    variance: var(&l.variance),
-                })
-                .collect(),
+            colour: Buffer { name: "beauty".into(), values: colour_values, variance: colour_var },
+            features,
+            layers,
         }
     }
 }

@@ -86,11 +86,7 @@ impl GuideSettings {
 
     /// Radius read around the guide rectangle for the feature values.
     pub fn values_radius(&self, has_variance: bool) -> usize {
-        if self.prefilters(has_variance) {
-            self.prefilter.map_or(0, |p| p.radius())
-        } else {
-            0
-        }
+        if self.prefilters(has_variance) { self.prefilter.map_or(0, |p| p.radius()) } else { 0 }
     }
 
     /// Radius read around the guide rectangle for the raw feature variance.
@@ -104,42 +100,21 @@ impl GuideSettings {
 /// `guide_rect = (out ⊕ max(r + f, f + 1)) ∩ frame` is where prefiltered values
 /// (and variance) are needed, `den_rect = (out ⊕ f) ∩ frame` where the
 /// denominators are needed.
-pub fn prepare(
-    feature: &Feature,
-    s: &GuideSettings,
-    frame: Rect,
-    guide_rect: Rect,
-    den_rect: Rect,
-) -> GuideFeature {
+pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Rect, den_rect: Rect) -> GuideFeature {
     let has_var = feature.variance.is_some();
     let n = feature.values.len();
-    let var_src = feature
-        .variance
-        .clone()
-        .map(variance::VarianceSource::Sample);
+    let var_src = feature.variance.clone().map(variance::VarianceSource::Sample);
     let values: Vec<Plane> = match (&var_src, s.prefilter) {
         (Some(src), Some(ps)) => {
             let pre_rect = guide_rect.expand(ps.radius()).intersect(&frame);
-            let var_pre =
-                variance::prefiltered(src, n, frame, s.variance_prefilter_radius, pre_rect);
-            let job = Job {
-                values: feature.values.iter().collect(),
-                variance: var_pre.iter().collect(),
-            };
-            nlmeans(&[job], &[], frame, guide_rect, &ps)
-                .pop()
-                .expect("one job")
+            let var_pre = variance::prefiltered(src, n, frame, s.variance_prefilter_radius, pre_rect);
+            let job = Job { values: feature.values.iter().collect(), variance: var_pre.iter().collect() };
+            nlmeans(&[job], &[], frame, guide_rect, &ps).pop().expect("one job")
         }
         _ => feature.values.iter().map(|p| p.crop(guide_rect)).collect(),
     };
     let variance = match (&var_src, s.use_variance && has_var) {
-        (Some(src), true) => Some(variance::prefiltered(
-            src,
-            n,
-            frame,
-            s.variance_prefilter_radius,
-            guide_rect,
-        )),
+        (Some(src), true) => Some(variance::prefiltered(src, n, frame, s.variance_prefilter_radius, guide_rect)),
         _ => None,
     };
     let grad = squared_gradient(&values, frame, den_rect);
@@ -162,9 +137,5 @@ pub fn prepare(
             })
         })
         .collect();
-    GuideFeature {
-        values,
-        variance,
-        inv_den,
-    }
+    GuideFeature { values, variance, inv_den }
 }

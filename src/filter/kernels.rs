@@ -208,33 +208,13 @@ mod tests {
     #[test]
     fn box_mean_matches_direct_sum_and_is_region_invariant() {
         let src_rect = Rect::from_origin_size(-2, 3, 17, 11);
-        let src: Vec<f32> = (0..src_rect.area())
-            .map(|i| ((i * 7919) % 101) as f32 * 0.37)
-            .collect();
-        let clip = Rect {
-            x0: -1,
-            y0: 3,
-            x1: 14,
-            y1: 13,
-        };
+        let src: Vec<f32> = (0..src_rect.area()).map(|i| ((i * 7919) % 101) as f32 * 0.37).collect();
+        let clip = Rect { x0: -1, y0: 3, x1: 14, y1: 13 };
         let full = clip;
         let mut whole = vec![0.0; full.area()];
         let mut scratch = Vec::new();
         box_mean(&src, src_rect, clip, 2, full, &mut whole, &mut scratch);
-        for sub in [
-            Rect {
-                x0: 3,
-                y0: 5,
-                x1: 9,
-                y1: 8,
-            },
-            Rect {
-                x0: -1,
-                y0: 3,
-                x1: 0,
-                y1: 13,
-            },
-        ] {
+        for sub in [Rect { x0: 3, y0: 5, x1: 9, y1: 8 }, Rect { x0: -1, y0: 3, x1: 0, y1: 13 }] {
             let mut part = vec![0.0; sub.area()];
             box_mean(&src, src_rect, clip, 2, sub, &mut part, &mut scratch);
             for y in sub.y0..sub.y1 {
@@ -246,8 +226,7 @@ mod tests {
                     let mut n = 0.0;
                     for yy in (y - 2).max(clip.y0)..=(y + 2).min(clip.y1 - 1) {
                         for xx in (x - 2).max(clip.x0)..=(x + 2).min(clip.x1 - 1) {
-                            sum +=
-                                src[((yy - src_rect.y0) * 17 + xx - src_rect.x0) as usize] as f64;
+                            sum += src[((yy - src_rect.y0) * 17 + xx - src_rect.x0) as usize] as f64;
                             n += 1.0;
                         }
                     }

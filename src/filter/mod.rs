@@ -73,11 +73,7 @@ impl Default for Params {
             variance_prefilter_radius: 1,
             feature_variance_prefilter_radius: 1,
             feature_variance: true,
-            feature_prefilter: FeaturePrefilter {
-                search_radius: 3,
-                patch_radius: 2,
-                strength: 0.45,
-            },
+            feature_prefilter: FeaturePrefilter { search_radius: 3, patch_radius: 2, strength: 0.45 },
         }
     }
 }
@@ -100,32 +96,17 @@ impl Params {
         finite_pos("eps", self.eps, false)?;
         finite_pos("feature strength", self.feature_strength, false)?;
         finite_pos("tau", self.tau, false)?;
-        finite_pos(
-            "feature prefilter strength",
-            self.feature_prefilter.strength,
-            true,
-        )?;
+        finite_pos("feature prefilter strength", self.feature_prefilter.strength, true)?;
         for (name, v) in [
             ("search radius", self.search_radius),
             ("patch radius", self.patch_radius),
             ("variance prefilter radius", self.variance_prefilter_radius),
-            (
-                "feature variance prefilter radius",
-                self.feature_variance_prefilter_radius,
-            ),
-            (
-                "feature prefilter search radius",
-                self.feature_prefilter.search_radius,
-            ),
-            (
-                "feature prefilter patch radius",
-                self.feature_prefilter.patch_radius,
-            ),
+            ("feature variance prefilter radius", self.feature_variance_prefilter_radius),
+            ("feature prefilter search radius", self.feature_prefilter.search_radius),
+            ("feature prefilter patch radius", self.feature_prefilter.patch_radius),
         ] {
             if v > 1000 {
-                return Err(Error::InvalidParameter(format!(
-                    "{name} must be at most 1000, got {v}"
-                )));
+                return Err(Error::InvalidParameter(format!("{name} must be at most 1000, got {v}")));
             }
         }
         Ok(())
@@ -181,6 +162,36 @@ pub struct FrameInputs {
     pub layers: Vec<Buffer>,
 }
 
+impl FrameInputs {
+    /// Every plane cropped to `rect ∩ plane` (the window a tile reads).
+    pub fn crop(&self, rect: Rect) -> FrameInputs {
+        self.map_planes(&|p: &Plane| p.crop(rect.intersect(&p.rect())))
+    }
+
+    /// Apply `f` to every plane.
+    pub fn map_planes(&self, f: &dyn Fn(&Plane) -> Plane) -> FrameInputs {
+        let planes = |v: &[Plane]| v.iter().map(f).collect::<Vec<_>>();
+        let var = |v: &VarianceSource| match v {
+            VarianceSource::Sample(s) => VarianceSource::Sample(planes(s)),
+            VarianceSource::Halves { a, b } => VarianceSource::Halves { a: planes(a), b: planes(b) },
+        };
+        let buf = |b: &Buffer| Buffer { name: b.name.clone(), values: planes(&b.values), variance: var(&b.variance) };
+        FrameInputs {
+            colour: buf(&self.colour),
+            features: self
+                .features
+                .iter()
+                .map(|ft| Feature {
+                    name: ft.name.clone(),
+                    values: planes(&ft.values),
+                    variance: ft.variance.as_deref().map(planes),
+                })
+                .collect(),
+            layers: self.layers.iter().map(buf).collect(),
+        }
+    }
+}
+
 /// The filter's output on the output rectangle.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Denoised {
@@ -203,11 +214,7 @@ impl InputShape {
     /// The shape of a set of inputs.
     pub fn of(inputs: &FrameInputs) -> InputShape {
         InputShape {
-            feature_has_variance: inputs
-                .features
-                .iter()
-                .map(|f| f.variance.is_some())
-                .collect(),
+            feature_has_variance: inputs.features.iter().map(|f| f.variance.is_some()).collect(),
             layers: inputs.layers.len(),
         }
     }
@@ -263,14 +270,7 @@ impl Pipeline {
         let gs = self.params.guide_settings();
         let has_var = self.shape.feature_has_variance[j];
         let g = self.guide_radius();
-        (
-            g + gs.values_radius(has_var),
-            if gs.reads_variance(has_var) {
-                g + gs.variance_radius(has_var)
-            } else {
-                0
-            },
-        )
+        (g + gs.values_radius(has_var), if gs.reads_variance(has_var) { g + gs.variance_radius(has_var) } else { 0 })
     }
 
     /// The halo: how far around an output pixel any input is read.
@@ -324,20 +324,13 @@ fn check_cover(what: &str, plane: &Plane, need: Rect) -> Result<(), Error> {
     if plane.rect().contains_rect(&need) {
         Ok(())
     } else {
-        Err(Error::InvalidInput(format!(
-            "{what} covers {:?} but the filter needs {:?}",
-            plane.rect(),
-            need
-        )))
+        Err(Error::InvalidInput(format!("{what} covers {:?} but the filter needs {:?}", plane.rect(), need)))
     }
 }
 
 fn check_buffer(b: &Buffer, need_values: Rect, need_var: Rect) -> Result<(), Error> {
     if b.values.is_empty() {
-        return Err(Error::InvalidInput(format!(
-            "buffer {} has no channels",
-            b.name
-        )));
+        return Err(Error::InvalidInput(format!("buffer {} has no channels", b.name)));
     }
     for p in &b.values {
         check_cover(&b.name, p, need_values)?;
@@ -366,17 +359,10 @@ fn check_buffer(b: &Buffer, need_values: Rect, need_var: Rect) -> Result<(), Err
 /// Inputs must cover `(out ⊕ halo) ∩ frame` with the halo of
 /// [`Pipeline::halo`]; the result equals the same rectangle of whole-frame
 /// filtering bit for bit.
-pub fn denoise_region(
-    inputs: &FrameInputs,
-    frame: Rect,
-    out: Rect,
-    params: &Params,
-) -> Result<Denoised, Error> {
+pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Params) -> Result<Denoised, Error> {
     params.validate()?;
     if !frame.contains_rect(&out) {
-        return Err(Error::InvalidInput(format!(
-            "output rectangle {out:?} is not inside the frame {frame:?}"
-        )));
+        return Err(Error::InvalidInput(format!("output rectangle {out:?} is not inside the frame {frame:?}")));
     }
     let pipeline = Pipeline::new(*params, InputShape::of(inputs));
     let main_rect = out.expand(pipeline.main_radius()).intersect(&frame);
@@ -398,10 +384,7 @@ pub fn denoise_region(
     for (j, feat) in inputs.features.iter().enumerate() {
         let (vr, varr) = pipeline.feature_radii(j);
         if feat.values.is_empty() {
-            return Err(Error::InvalidInput(format!(
-                "feature {} has no channels",
-                feat.name
-            )));
+            return Err(Error::InvalidInput(format!("feature {} has no channels", feat.name)));
         }
         for p in &feat.values {
             check_cover(&feat.name, p, out.expand(vr).intersect(&frame))?;
@@ -417,55 +400,34 @@ pub fn denoise_region(
             }
             if varr > 0 {
                 for p in v {
-                    check_cover(
-                        &format!("variance of {}", feat.name),
-                        p,
-                        out.expand(varr).intersect(&frame),
-                    )?;
+                    check_cover(&format!("variance of {}", feat.name), p, out.expand(varr).intersect(&frame))?;
                 }
             }
         }
     }
     if out.is_empty() {
-        return Ok(Denoised {
-            colour: Vec::new(),
-            layers: Vec::new(),
-        });
+        return Ok(Denoised { colour: Vec::new(), layers: Vec::new() });
     }
 
-    let buffers: Vec<&Buffer> = if inputs.layers.is_empty() {
-        vec![&inputs.colour]
-    } else {
-        inputs.layers.iter().collect()
-    };
-    let variances: Vec<Vec<Plane>> = buffers
-        .iter()
-        .map(|b| variance::prefiltered(&b.variance, b.values.len(), frame, rho, main_rect))
-        .collect();
+    let buffers: Vec<&Buffer> =
+        if inputs.layers.is_empty() { vec![&inputs.colour] } else { inputs.layers.iter().collect() };
+    let variances: Vec<Vec<Plane>> =
+        buffers.iter().map(|b| variance::prefiltered(&b.variance, b.values.len(), frame, rho, main_rect)).collect();
     let jobs: Vec<Job<'_>> = buffers
         .iter()
         .zip(&variances)
-        .map(|(b, v)| Job {
-            values: b.values.iter().collect(),
-            variance: v.iter().collect(),
-        })
+        .map(|(b, v)| Job { values: b.values.iter().collect(), variance: v.iter().collect() })
         .collect();
 
     let gs = params.guide_settings();
     let guide_rect = out.expand(pipeline.guide_radius()).intersect(&frame);
     let den_rect = out.expand(params.patch_radius).intersect(&frame);
-    let guides: Vec<_> = inputs
-        .features
-        .iter()
-        .map(|f| features::prepare(f, &gs, frame, guide_rect, den_rect))
-        .collect();
+    let guides: Vec<_> =
+        inputs.features.iter().map(|f| features::prepare(f, &gs, frame, guide_rect, den_rect)).collect();
 
     let mut results = nlmeans::nlmeans(&jobs, &guides, frame, out, &params.main_settings());
     if inputs.layers.is_empty() {
-        Ok(Denoised {
-            colour: results.pop().expect("one job"),
-            layers: Vec::new(),
-        })
+        Ok(Denoised { colour: results.pop().expect("one job"), layers: Vec::new() })
     } else {
         let mut colour: Vec<Plane> = results[0].clone();
         for layer in &results[1..] {
@@ -475,9 +437,6 @@ pub fn denoise_region(
                 }
             }
         }
-        Ok(Denoised {
-            colour,
-            layers: results,
-        })
+        Ok(Denoised { colour, layers: results })
     }
 }

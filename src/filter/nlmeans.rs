@@ -8,9 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{
-    accumulate_colour_distance, accumulate_feature_distance, box_mean, exp_neg_clamped,
-};
+use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, box_mean, exp_neg_clamped};
 use crate::geom::Rect;
 use crate::image::Plane;
 
@@ -70,14 +68,9 @@ pub fn nlmeans(
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
     let blocks = out.tiles(BLOCK_W, BLOCK_H);
-    let results: Vec<Vec<Vec<Plane>>> = blocks
-        .par_iter()
-        .map(|b| filter_block(jobs, features, frame, *b, s))
-        .collect();
-    let mut outputs: Vec<Vec<Plane>> = jobs
-        .iter()
-        .map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect())
-        .collect();
+    let results: Vec<Vec<Vec<Plane>>> = blocks.par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
+    let mut outputs: Vec<Vec<Plane>> =
+        jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
     for block in results {
         for (job_out, block_job) in outputs.iter_mut().zip(block) {
             for (plane, part) in job_out.iter_mut().zip(block_job) {
@@ -99,10 +92,7 @@ fn filter_block(
     let f = s.patch_radius;
     let k2 = s.strength * s.strength;
     let area = block.area();
-    let mut num: Vec<Vec<Vec<f32>>> = jobs
-        .iter()
-        .map(|j| vec![vec![0.0f32; area]; j.values.len()])
-        .collect();
+    let mut num: Vec<Vec<Vec<f32>>> = jobs.iter().map(|j| vec![vec![0.0f32; area]; j.values.len()]).collect();
     let mut den: Vec<Vec<f32>> = jobs.iter().map(|_| vec![0.0f32; area]).collect();
 
     let cap_d = block.expand(2 * f).area();
@@ -217,19 +207,11 @@ fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out:
             for (c, fv) in feat.values.iter().enumerate() {
                 let fp = fv.row(y, rect.x0, rect.x1);
                 let fq = fv.row(y + dy, rect.x0 + dx, rect.x1 + dx);
-                let var = feat.variance.as_ref().map(|v| {
-                    (
-                        v[c].row(y, rect.x0, rect.x1),
-                        v[c].row(y + dy, rect.x0 + dx, rect.x1 + dx),
-                    )
-                });
-                accumulate_feature_distance(
-                    &mut phi,
-                    fp,
-                    fq,
-                    var,
-                    feat.inv_den[c].row(y, rect.x0, rect.x1),
-                );
+                let var = feat
+                    .variance
+                    .as_ref()
+                    .map(|v| (v[c].row(y, rect.x0, rect.x1), v[c].row(y + dy, rect.x0 + dx, rect.x1 + dx)));
+                accumulate_feature_distance(&mut phi, fp, fq, var, feat.inv_den[c].row(y, rect.x0, rect.x1));
             }
             let inv_c = 1.0 / feat.values.len() as f32;
             for (o, p) in row.iter_mut().zip(&phi) {

@@ -24,10 +24,7 @@ impl Frame {
 }
 
 fn to_grid(planes: &[Plane], rect: Rect) -> Grid {
-    planes
-        .iter()
-        .map(|p| p.crop(rect).data().iter().map(|&v| v as f64).collect())
-        .collect()
+    planes.iter().map(|p| p.crop(rect).data().iter().map(|&v| v as f64).collect()).collect()
 }
 
 fn raw_variance(src: &VarianceSource, rect: Rect) -> Grid {
@@ -35,15 +32,7 @@ fn raw_variance(src: &VarianceSource, rect: Rect) -> Grid {
         VarianceSource::Sample(v) => to_grid(v, rect),
         VarianceSource::Halves { a, b } => {
             let (a, b) = (to_grid(a, rect), to_grid(b, rect));
-            a.iter()
-                .zip(&b)
-                .map(|(a, b)| {
-                    a.iter()
-                        .zip(b)
-                        .map(|(x, y)| (x - y) * (x - y) / 4.0)
-                        .collect()
-                })
-                .collect()
+            a.iter().zip(&b).map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y) / 4.0).collect()).collect()
         }
     }
 }
@@ -103,13 +92,7 @@ fn naive_nlmeans(
                         continue;
                     }
                     let count = |x: i64, y: i64| {
-                        let b = Rect {
-                            x0: x - f,
-                            y0: y - f,
-                            x1: x + f + 1,
-                            y1: y + f + 1,
-                        }
-                        .intersect(&valid);
+                        let b = Rect { x0: x - f, y0: y - f, x1: x + f + 1, y1: y + f + 1 }.intersect(&valid);
                         b.area() as f64
                     };
                     for sy in valid.y0..valid.y1 {
@@ -125,8 +108,7 @@ fn naive_nlmeans(
                                     let mut dc = 0.0;
                                     for c in 0..u.len() {
                                         let diff = u[c][p] - u[c][q];
-                                        let num =
-                                            diff * diff - alpha * (v[c][p] + v[c][p].min(v[c][q]));
+                                        let num = diff * diff - alpha * (v[c][p] + v[c][p].min(v[c][q]));
                                         dc += num / (eps + k * k * (v[c][p] + v[c][q]));
                                     }
                                     d += dc / u.len() as f64;
@@ -167,9 +149,7 @@ fn naive_nlmeans(
                     }
                 }
             }
-            flt.into_iter()
-                .map(|ch| ch.iter().zip(&wsum).map(|(a, b)| a / b).collect())
-                .collect()
+            flt.into_iter().map(|ch| ch.iter().zip(&wsum).map(|(a, b)| a / b).collect()).collect()
         })
         .collect()
 }
@@ -181,17 +161,13 @@ fn gradient(fr: &Frame, values: &Grid) -> Vec<f64> {
         for y in rect.y0..rect.y1 {
             for x in rect.x0..rect.x1 {
                 let c = ch[fr.idx(x, y)];
-                let side = |xx: i64, yy: i64| {
-                    rect.contains(xx, yy)
-                        .then(|| ((c - ch[fr.idx(xx, yy)]) / 2.0).powi(2))
-                };
+                let side = |xx: i64, yy: i64| rect.contains(xx, yy).then(|| ((c - ch[fr.idx(xx, yy)]) / 2.0).powi(2));
                 let pair = |a: Option<f64>, b: Option<f64>| match (a, b) {
                     (Some(a), Some(b)) => a.min(b),
                     (Some(a), None) | (None, Some(a)) => a,
                     (None, None) => 0.0,
                 };
-                g[fr.idx(x, y)] +=
-                    pair(side(x - 1, y), side(x + 1, y)) + pair(side(x, y - 1), side(x, y + 1));
+                g[fr.idx(x, y)] += pair(side(x - 1, y), side(x + 1, y)) + pair(side(x, y - 1), side(x, y + 1));
             }
         }
     }
@@ -204,32 +180,21 @@ pub fn denoise_frame(inputs: &FrameInputs, frame: Rect, params: &Params) -> Vec<
     let fr = Frame { rect: frame };
     let rho = params.variance_prefilter_radius;
     let (alpha, eps) = (params.alpha as f64, params.eps as f64);
-    let buffers: Vec<&Buffer> = if inputs.layers.is_empty() {
-        vec![&inputs.colour]
-    } else {
-        inputs.layers.iter().collect()
-    };
+    let buffers: Vec<&Buffer> =
+        if inputs.layers.is_empty() { vec![&inputs.colour] } else { inputs.layers.iter().collect() };
     let jobs: Vec<(Grid, Grid)> = buffers
         .iter()
-        .map(|b| {
-            (
-                to_grid(&b.values, frame),
-                prefilter_variance(&fr, &raw_variance(&b.variance, frame), rho),
-            )
-        })
+        .map(|b| (to_grid(&b.values, frame), prefilter_variance(&fr, &raw_variance(&b.variance, frame), rho)))
         .collect();
     let fp = params.feature_prefilter;
     let guides: Vec<Guide> = inputs
         .features
         .iter()
         .map(|feat| {
-            let var = feat.variance.as_ref().map(|v| {
-                prefilter_variance(
-                    &fr,
-                    &to_grid(v, frame),
-                    params.feature_variance_prefilter_radius,
-                )
-            });
+            let var = feat
+                .variance
+                .as_ref()
+                .map(|v| prefilter_variance(&fr, &to_grid(v, frame), params.feature_variance_prefilter_radius));
             let mut values = to_grid(&feat.values, frame);
             if let (Some(v), true) = (&var, fp.search_radius > 0) {
                 values = naive_nlmeans(
@@ -262,11 +227,7 @@ pub fn denoise_frame(inputs: &FrameInputs, frame: Rect, params: &Params) -> Vec<
                         .collect()
                 })
                 .collect();
-            Guide {
-                values,
-                variance,
-                den,
-            }
+            Guide { values, variance, den }
         })
         .collect();
     let outs = naive_nlmeans(

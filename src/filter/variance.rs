@@ -61,15 +61,7 @@ pub fn prefilter(raw: &Plane, frame: Rect, rho: usize, target: Rect) -> Plane {
     }
     let mut out = vec![0.0f32; target.area()];
     let mut scratch = Vec::new();
-    box_mean(
-        raw.data(),
-        raw.rect(),
-        frame,
-        rho,
-        target,
-        &mut out,
-        &mut scratch,
-    );
+    box_mean(raw.data(), raw.rect(), frame, rho, target, &mut out, &mut scratch);
     let mut plane = Plane::from_vec(target, out).expect("target-sized buffer");
     for y in target.y0..target.y1 {
         for x in target.x0..target.x1 {
@@ -82,15 +74,7 @@ pub fn prefilter(raw: &Plane, frame: Rect, rho: usize, target: Rect) -> Plane {
 }
 
 /// Raw variance of every channel on `(target ⊕ rho) ∩ frame`, prefiltered onto `target`.
-pub fn prefiltered(
-    src: &VarianceSource,
-    channels: usize,
-    frame: Rect,
-    rho: usize,
-    target: Rect,
-) -> Vec<Plane> {
+pub fn prefiltered(src: &VarianceSource, channels: usize, frame: Rect, rho: usize, target: Rect) -> Vec<Plane> {
     let raw_rect = target.expand(rho).intersect(&frame);
-    (0..channels)
-        .map(|c| prefilter(&src.raw(c, raw_rect), frame, rho, target))
-        .collect()
+    (0..channels).map(|c| prefilter(&src.raw(c, raw_rect), frame, rho, target)).collect()
 }

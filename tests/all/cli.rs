@@ -7,9 +7,7 @@ use nldenoise::exrio::{self, SampleKind};
 use nldenoise::metrics;
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
 }
 
 fn bin() -> Command {
@@ -39,20 +37,13 @@ fn denoise_improves_the_fixture_and_keeps_every_channel() {
         .args(["--threads", "2", "--layers", "auto"])
         .assert()
         .success();
-    assert_eq!(
-        std::fs::read(&input).unwrap(),
-        before,
-        "the input must not be modified"
-    );
+    assert_eq!(std::fs::read(&input).unwrap(), before, "the input must not be modified");
     let noisy = exrio::read_frame(&input).unwrap();
     let den = exrio::read_frame(&out).unwrap();
     let reference = exrio::read_frame(&fixture("cornell_ref.exr")).unwrap();
     assert_eq!(den.channel_names(), noisy.channel_names());
     let (n, d) = (rel_mse(&noisy, &reference), rel_mse(&den, &reference));
-    assert!(
-        d < 0.5 * n,
-        "denoised relMSE {d} should be well below the noisy {n}"
-    );
+    assert!(d < 0.5 * n, "denoised relMSE {d} should be well below the noisy {n}");
     for name in ["A.R", "var.G", "albedo.B", "N.X", "Z", "Z_var"] {
         let (a, b) = (noisy.channel(name).unwrap(), den.channel(name).unwrap());
         assert_eq!(a.kind, b.kind, "{name}");
@@ -122,14 +113,7 @@ fn info_prints_roles_and_plan() {
         assert!(text.contains(want), "missing {want:?} in:\n{text}");
     }
     // Without --layers, the layers are carried and a note says how to use them.
-    let out = bin()
-        .arg("info")
-        .arg(fixture("cornell_0032spp.exr"))
-        .assert()
-        .success()
-        .get_output()
-        .stdout
-        .clone();
+    let out = bin().arg("info").arg(fixture("cornell_0032spp.exr")).assert().success().get_output().stdout.clone();
     let text = String::from_utf8(out).unwrap();
     assert!(text.contains("--layers auto"), "{text}");
 }
@@ -137,42 +121,14 @@ fn info_prints_roles_and_plan() {
 #[test]
 fn compare_prints_the_metrics() {
     let f = fixture("cornell_0032spp.exr");
-    let out = bin()
-        .arg("compare")
-        .arg(&f)
-        .arg(&f)
-        .assert()
-        .success()
-        .get_output()
-        .stdout
-        .clone();
+    let out = bin().arg("compare").arg(&f).arg(&f).assert().success().get_output().stdout.clone();
     let text = String::from_utf8(out).unwrap();
-    for key in [
-        "relMSE: ",
-        "MSE: ",
-        "PSNR: ",
-        "max_abs_diff: ",
-        "bitwise_identical: yes",
-    ] {
-        assert!(
-            text.lines().any(|l| l.starts_with(key)),
-            "missing {key:?} in:\n{text}"
-        );
+    for key in ["relMSE: ", "MSE: ", "PSNR: ", "max_abs_diff: ", "bitwise_identical: yes"] {
+        assert!(text.lines().any(|l| l.starts_with(key)), "missing {key:?} in:\n{text}");
     }
-    let out = bin()
-        .arg("compare")
-        .arg(&f)
-        .arg(fixture("cornell_ref.exr"))
-        .assert()
-        .success()
-        .get_output()
-        .stdout
-        .clone();
-    assert!(
-        String::from_utf8(out)
-            .unwrap()
-            .contains("bitwise_identical: no")
-    );
+    let out =
+        bin().arg("compare").arg(&f).arg(fixture("cornell_ref.exr")).assert().success().get_output().stdout.clone();
+    assert!(String::from_utf8(out).unwrap().contains("bitwise_identical: no"));
 }
 
 #[test]
@@ -184,37 +140,14 @@ fn bad_inputs_fail_clearly_without_output() {
     for (input, extra, needle) in [
         (dir.path().join("missing.exr"), vec![], "missing.exr"),
         (garbage.clone(), vec![], "garbage.exr"),
-        (
-            fixture("cornell_0032spp.exr"),
-            vec!["--features", "nosuch"],
-            "nosuch",
-        ),
-        (
-            fixture("cornell_0032spp.exr"),
-            vec!["--map", "color=Q,R,S"],
-            "\"Q\"",
-        ),
-        (
-            fixture("cornell_ref.exr"),
-            vec!["--variance", "halves"],
-            "half buffers",
-        ),
+        (fixture("cornell_0032spp.exr"), vec!["--features", "nosuch"], "nosuch"),
+        (fixture("cornell_0032spp.exr"), vec!["--map", "color=Q,R,S"], "\"Q\""),
+        (fixture("cornell_ref.exr"), vec!["--variance", "halves"], "half buffers"),
         (fixture("cornell_0032spp.exr"), vec!["--tau", "0"], "tau"),
     ] {
-        let assert = bin()
-            .arg("denoise")
-            .arg(&input)
-            .arg("-o")
-            .arg(&out)
-            .args(&extra)
-            .assert()
-            .failure()
-            .code(1);
+        let assert = bin().arg("denoise").arg(&input).arg("-o").arg(&out).args(&extra).assert().failure().code(1);
         let err = String::from_utf8(assert.get_output().stderr.clone()).unwrap();
-        assert!(
-            err.contains(needle),
-            "stderr should mention {needle:?}: {err}"
-        );
+        assert!(err.contains(needle), "stderr should mention {needle:?}: {err}");
         assert!(!err.contains("panicked"), "{err}");
         assert!(!out.exists(), "no output may be written on error");
     }

@@ -38,32 +38,14 @@ pub struct Kinds {
 }
 
 pub const ALL_KINDS: [Kinds; 4] = [
-    Kinds {
-        features: false,
-        layers: false,
-        halves: false,
-    },
-    Kinds {
-        features: true,
-        layers: false,
-        halves: false,
-    },
-    Kinds {
-        features: true,
-        layers: true,
-        halves: false,
-    },
-    Kinds {
-        features: false,
-        layers: false,
-        halves: true,
-    },
+    Kinds { features: false, layers: false, halves: false },
+    Kinds { features: true, layers: false, halves: false },
+    Kinds { features: true, layers: true, halves: false },
+    Kinds { features: false, layers: false, halves: true },
 ];
 
 fn noisy_plane(rect: Rect, rng: &mut Rng, base: impl Fn(i64, i64) -> f32, sigma: &Plane) -> Plane {
-    Plane::from_fn(rect, |x, y| {
-        base(x, y) + sigma.get(x, y).sqrt() * rng.normal()
-    })
+    Plane::from_fn(rect, |x, y| base(x, y) + sigma.get(x, y).sqrt() * rng.normal())
 }
 
 /// A generic noisy frame over `frame`.
@@ -78,34 +60,18 @@ pub fn frame_inputs(frame: Rect, seed: u64, kinds: Kinds) -> FrameInputs {
             a + b + 0.05 * c as f32 + 0.02 * ((x + 2 * y) % 5) as f32
         }
     };
-    let var_plane =
-        |rng: &mut Rng, scale: f32| Plane::from_fn(frame, |_, _| scale * (0.2 + rng.uniform()));
+    let var_plane = |rng: &mut Rng, scale: f32| Plane::from_fn(frame, |_, _| scale * (0.2 + rng.uniform()));
     let make_buffer = |rng: &mut Rng, name: &str, scale: f32, halves: bool| {
         let vars: Vec<Plane> = (0..3).map(|_| var_plane(rng, scale)).collect();
         if halves {
-            let a: Vec<Plane> = (0..3)
-                .map(|c| noisy_plane(frame, rng, base(c), &vars[c].map(|v| 2.0 * v)))
-                .collect();
-            let b: Vec<Plane> = (0..3)
-                .map(|c| noisy_plane(frame, rng, base(c), &vars[c].map(|v| 2.0 * v)))
-                .collect();
-            let values = (0..3)
-                .map(|c| Plane::from_fn(frame, |x, y| (a[c].get(x, y) + b[c].get(x, y)) * 0.5))
-                .collect();
-            Buffer {
-                name: name.into(),
-                values,
-                variance: VarianceSource::Halves { a, b },
-            }
+            let a: Vec<Plane> = (0..3).map(|c| noisy_plane(frame, rng, base(c), &vars[c].map(|v| 2.0 * v))).collect();
+            let b: Vec<Plane> = (0..3).map(|c| noisy_plane(frame, rng, base(c), &vars[c].map(|v| 2.0 * v))).collect();
+            let values =
+                (0..3).map(|c| Plane::from_fn(frame, |x, y| (a[c].get(x, y) + b[c].get(x, y)) * 0.5)).collect();
+            Buffer { name: name.into(), values, variance: VarianceSource::Halves { a, b } }
         } else {
-            let values = (0..3)
-                .map(|c| noisy_plane(frame, rng, base(c), &vars[c]))
-                .collect();
-            Buffer {
-                name: name.into(),
-                values,
-                variance: VarianceSource::Sample(vars),
-            }
+            let values = (0..3).map(|c| noisy_plane(frame, rng, base(c), &vars[c])).collect();
+            Buffer { name: name.into(), values, variance: VarianceSource::Sample(vars) }
         }
     };
     let mut colour = make_buffer(&mut rng, "beauty", 0.01, kinds.halves);
@@ -114,11 +80,7 @@ pub fn frame_inputs(frame: Rect, seed: u64, kinds: Kinds) -> FrameInputs {
         let direct = make_buffer(&mut rng, "direct", 0.004, false);
         let indirect = make_buffer(&mut rng, "indirect", 0.008, false);
         colour.values = (0..3)
-            .map(|c| {
-                Plane::from_fn(frame, |x, y| {
-                    direct.values[c].get(x, y) + indirect.values[c].get(x, y)
-                })
-            })
+            .map(|c| Plane::from_fn(frame, |x, y| direct.values[c].get(x, y) + indirect.values[c].get(x, y)))
             .collect();
         layers = vec![direct, indirect];
     }
@@ -126,83 +88,36 @@ pub fn frame_inputs(frame: Rect, seed: u64, kinds: Kinds) -> FrameInputs {
     if kinds.features {
         let albedo_base = move |c: usize| {
             move |x: i64, y: i64| {
-                if (x / 3 + y / 4) % 2 == 0 {
-                    0.2 + 0.1 * c as f32
-                } else {
-                    0.8
-                }
+                if (x / 3 + y / 4) % 2 == 0 { 0.2 + 0.1 * c as f32 } else { 0.8 }
             }
         };
         let avar: Vec<Plane> = (0..3).map(|_| var_plane(&mut rng, 1e-4)).collect();
-        let albedo = (0..3)
-            .map(|c| noisy_plane(frame, &mut rng, albedo_base(c), &avar[c]))
-            .collect();
-        features.push(Feature {
-            name: "albedo".into(),
-            values: albedo,
-            variance: Some(avar),
-        });
+        let albedo = (0..3).map(|c| noisy_plane(frame, &mut rng, albedo_base(c), &avar[c])).collect();
+        features.push(Feature { name: "albedo".into(), values: albedo, variance: Some(avar) });
         let normal = (0..3)
-            .map(|c| Plane::from_fn(frame, |x, y| if x < edge_x { [0.0, 1.0, 0.0][c] } else { [0.7, 0.0, 0.7][c] } + 0.01 * (y % 3) as f32))
+            .map(|c| {
+                Plane::from_fn(
+                    frame,
+                    |x, y| if x < edge_x { [0.0, 1.0, 0.0][c] } else { [0.7, 0.0, 0.7][c] } + 0.01 * (y % 3) as f32,
+                )
+            })
             .collect();
-        features.push(Feature {
-            name: "N".into(),
-            values: normal,
-            variance: None,
-        });
+        features.push(Feature { name: "N".into(), values: normal, variance: None });
         let zvar = vec![var_plane(&mut rng, 1e-3)];
-        let depth = vec![noisy_plane(
-            frame,
-            &mut rng,
-            |x, y| 2.0 + 0.05 * x as f32 + 0.03 * y as f32,
-            &zvar[0],
-        )];
-        features.push(Feature {
-            name: "Z".into(),
-            values: depth,
-            variance: Some(zvar),
-        });
+        let depth = vec![noisy_plane(frame, &mut rng, |x, y| 2.0 + 0.05 * x as f32 + 0.03 * y as f32, &zvar[0])];
+        features.push(Feature { name: "Z".into(), values: depth, variance: Some(zvar) });
     }
-    FrameInputs {
-        colour,
-        features,
-        layers,
-    }
+    FrameInputs { colour, features, layers }
 }
 
 /// Every plane of `inputs` cropped to `rect ∩ plane`.
 pub fn crop_inputs(inputs: &FrameInputs, rect: Rect) -> FrameInputs {
-    map_planes(inputs, &|p: &Plane| p.crop(rect.intersect(&p.rect())))
+    inputs.crop(rect)
 }
 
 /// Apply `f` to every plane.
 pub fn map_planes(inputs: &FrameInputs, f: &dyn Fn(&Plane) -> Plane) -> FrameInputs {
-    let planes = |v: &[Plane]| v.iter().map(f).collect::<Vec<_>>();
-    let var = |v: &VarianceSource| match v {
-        VarianceSource::Sample(s) => VarianceSource::Sample(planes(s)),
-        VarianceSource::Halves { a, b } => VarianceSource::Halves {
-            a: planes(a),
-            b: planes(b),
-        },
-    };
-    let buf = |b: &Buffer| Buffer {
-        name: b.name.clone(),
-        values: planes(&b.values),
-        variance: var(&b.variance),
-    };
-    FrameInputs {
-        colour: buf(&inputs.colour),
-        features: inputs
-            .features
-            .iter()
-            .map(|ft| Feature {
-                name: ft.name.clone(),
-                values: planes(&ft.values),
-                variance: ft.variance.as_deref().map(planes),
-            })
-            .collect(),
-        layers: inputs.layers.iter().map(buf).collect(),
-    }
+    inputs.map_planes(f)
 }
 
 /// Parameters with every prefilter on and small radii (fast tests).
@@ -222,9 +137,5 @@ pub fn small_params(r: usize, f: usize) -> Params {
 
 /// Bit patterns of every output plane, in order.
 pub fn bits(d: &nldenoise::filter::Denoised) -> Vec<Vec<u32>> {
-    d.colour
-        .iter()
-        .chain(d.layers.iter().flatten())
-        .map(|p| p.data().iter().map(|v| v.to_bits()).collect())
-        .collect()
+    d.colour.iter().chain(d.layers.iter().flatten()).map(|p| p.data().iter().map(|v| v.to_bits()).collect()).collect()
 }

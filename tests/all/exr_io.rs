@@ -9,11 +9,7 @@ use crate::common::Rng;
 fn sample_frame(dw: Rect) -> Frame {
     let mut rng = Rng::new(5);
     let n = dw.area();
-    let vals = |rng: &mut Rng| {
-        (0..n)
-            .map(|_| rng.uniform() * 4.0 - 1.0)
-            .collect::<Vec<f32>>()
-    };
+    let vals = |rng: &mut Rng| (0..n).map(|_| rng.uniform() * 4.0 - 1.0).collect::<Vec<f32>>();
     let mut channels = vec![
         Channel::from_f32_as_half("R", &vals(&mut rng)),
         Channel::from_f32_as_half("G", &vals(&mut rng)),
@@ -27,10 +23,7 @@ fn sample_frame(dw: Rect) -> Frame {
 #[test]
 fn round_trip_every_layout() {
     let dir = tempfile::tempdir().unwrap();
-    for dw in [
-        Rect::from_origin_size(0, 0, 37, 21),
-        Rect::from_origin_size(-13, 40, 20, 33),
-    ] {
+    for dw in [Rect::from_origin_size(0, 0, 37, 21), Rect::from_origin_size(-13, 40, 20, 33)] {
         let frame = sample_frame(dw);
         for (tiles, decreasing, compression) in [
             (None, false, OutputCompression::Zip),
@@ -40,16 +33,7 @@ fn round_trip_every_layout() {
             (None, false, OutputCompression::Rle),
         ] {
             let path = dir.path().join("rt.exr");
-            exrio::write_frame(
-                &path,
-                &frame,
-                &WriteOptions {
-                    compression,
-                    tiles,
-                    decreasing,
-                },
-            )
-            .unwrap();
+            exrio::write_frame(&path, &frame, &WriteOptions { compression, tiles, decreasing }).unwrap();
             let back = exrio::read_frame(&path).unwrap();
             assert_eq!(back.data_window, dw);
             assert_eq!(back.channel_names(), frame.channel_names());
@@ -87,12 +71,7 @@ fn unreadable_files_are_errors_naming_the_file() {
     assert!(e.contains("missing.exr"), "{e}");
     // A truncated file.
     let good = dir.path().join("good.exr");
-    exrio::write_frame(
-        &good,
-        &sample_frame(Rect::from_origin_size(0, 0, 30, 30)),
-        &WriteOptions::default(),
-    )
-    .unwrap();
+    exrio::write_frame(&good, &sample_frame(Rect::from_origin_size(0, 0, 30, 30)), &WriteOptions::default()).unwrap();
     let bytes = std::fs::read(&good).unwrap();
     let cut = dir.path().join("cut.exr");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
@@ -104,12 +83,8 @@ fn unreadable_files_are_errors_naming_the_file() {
 fn failed_write_leaves_no_file() {
     let dir = tempfile::tempdir().unwrap();
     let target = dir.path().join("no_such_dir").join("out.exr");
-    let e = exrio::write_frame(
-        &target,
-        &sample_frame(Rect::from_origin_size(0, 0, 4, 4)),
-        &WriteOptions::default(),
-    )
-    .unwrap_err();
+    let e = exrio::write_frame(&target, &sample_frame(Rect::from_origin_size(0, 0, 4, 4)), &WriteOptions::default())
+        .unwrap_err();
     assert!(e.to_string().contains("out.exr"), "{e}");
     assert!(!target.exists());
 }

@@ -5,4 +5,5 @@ mod common;
 mod exr_io;
 mod filter_math;
 mod reference;
+mod streaming;
 mod tiling;

@@ -19,10 +19,7 @@ fn check(frame: Rect, seed: u64, r: usize, f: usize) {
                 worst = worst.max((*a as f64 - b).abs() / (b.abs() + 1e-2));
             }
         }
-        assert!(
-            worst < 2e-5,
-            "{kinds:?} {frame:?} r={r} f={f}: worst relative difference {worst}"
-        );
+        assert!(worst < 2e-5, "{kinds:?} {frame:?} r={r} f={f}: worst relative difference {worst}");
     }
 }
 

@@ -9,30 +9,11 @@ use proptest::prelude::*;
 use crate::common::{ALL_KINDS, Kinds, bits, crop_inputs, frame_inputs, map_planes, small_params};
 
 /// Filter `frame` tile by tile, each tile reading only `(tile ⊕ halo) ∩ frame`.
-fn tiled(
-    inputs: &FrameInputs,
-    frame: Rect,
-    params: &Params,
-    tw: usize,
-    th: usize,
-) -> filter::Denoised {
+fn tiled(inputs: &FrameInputs, frame: Rect, params: &Params, tw: usize, th: usize) -> filter::Denoised {
     let halo = Pipeline::new(*params, InputShape::of(inputs)).halo();
-    let mut colour: Vec<Plane> = inputs
-        .colour
-        .values
-        .iter()
-        .map(|_| Plane::filled(frame, f32::NAN))
-        .collect();
-    let mut layers: Vec<Vec<Plane>> = inputs
-        .layers
-        .iter()
-        .map(|l| {
-            l.values
-                .iter()
-                .map(|_| Plane::filled(frame, f32::NAN))
-                .collect()
-        })
-        .collect();
+    let mut colour: Vec<Plane> = inputs.colour.values.iter().map(|_| Plane::filled(frame, f32::NAN)).collect();
+    let mut layers: Vec<Vec<Plane>> =
+        inputs.layers.iter().map(|l| l.values.iter().map(|_| Plane::filled(frame, f32::NAN)).collect()).collect();
     for tile in frame.tiles(tw, th) {
         let window = crop_inputs(inputs, tile.expand(halo).intersect(&frame));
         let out = filter::denoise_region(&window, frame, tile, params).unwrap();
@@ -48,22 +29,13 @@ fn tiled(
     filter::Denoised { colour, layers }
 }
 
-fn assert_tiled_equals_whole(
-    frame: Rect,
-    seed: u64,
-    kinds: Kinds,
-    params: &Params,
-    tiles: &[(usize, usize)],
-) {
+fn assert_tiled_equals_whole(frame: Rect, seed: u64, kinds: Kinds, params: &Params, tiles: &[(usize, usize)]) {
     let inputs = frame_inputs(frame, seed, kinds);
     let whole = filter::denoise_region(&inputs, frame, frame, params).unwrap();
     let whole_bits = bits(&whole);
     for &(tw, th) in tiles {
         let t = tiled(&inputs, frame, params, tw, th);
-        assert!(
-            bits(&t) == whole_bits,
-            "tiles {tw}x{th} differ from whole frame ({kinds:?}, {frame:?}, {params:?})"
-        );
+        assert!(bits(&t) == whole_bits, "tiles {tw}x{th} differ from whole frame ({kinds:?}, {frame:?}, {params:?})");
     }
 }
 
@@ -83,19 +55,11 @@ fn tiles_equal_whole_frame_for_every_input_kind() {
 
 #[test]
 fn tiles_equal_whole_frame_on_thin_frames() {
-    for frame in [
-        Rect::from_origin_size(0, 0, 1, 40),
-        Rect::from_origin_size(0, 0, 40, 1),
-        Rect::from_origin_size(3, 3, 2, 2),
-    ] {
+    for frame in
+        [Rect::from_origin_size(0, 0, 1, 40), Rect::from_origin_size(0, 0, 40, 1), Rect::from_origin_size(3, 3, 2, 2)]
+    {
         for kinds in ALL_KINDS {
-            assert_tiled_equals_whole(
-                frame,
-                7,
-                kinds,
-                &small_params(4, 2),
-                &[(1, 1), (7, 3), (3, 7)],
-            );
+            assert_tiled_equals_whole(frame, 7, kinds, &small_params(4, 2), &[(1, 1), (7, 3), (3, 7)]);
         }
     }
 }
@@ -106,10 +70,7 @@ fn thread_count_does_not_change_bits() {
     let inputs = frame_inputs(frame, 5, ALL_KINDS[2]);
     let params = small_params(3, 2);
     let run = |n: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()
-            .unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
         bits(&pool.install(|| filter::denoise_region(&inputs, frame, frame, &params).unwrap()))
     };
     let one = run(1);
@@ -142,21 +103,11 @@ fn halo_is_sufficient_and_tight() {
         (ALL_KINDS[0], small_params(3, 2)),
         (ALL_KINDS[3], small_params(2, 1)),
         (ALL_KINDS[1], small_params(3, 1)),
-        (
-            ALL_KINDS[2],
-            Params {
-                variance_prefilter_radius: 3,
-                ..small_params(2, 2)
-            },
-        ),
+        (ALL_KINDS[2], Params { variance_prefilter_radius: 3, ..small_params(2, 2) }),
         (
             ALL_KINDS[1],
             Params {
-                feature_prefilter: filter::FeaturePrefilter {
-                    search_radius: 4,
-                    patch_radius: 2,
-                    strength: 0.45,
-                },
+                feature_prefilter: filter::FeaturePrefilter { search_radius: 4, patch_radius: 2, strength: 0.45 },
                 ..small_params(2, 1)
             },
         ),

@@ -1,0 +1,189 @@
+//! The memory budget: from a byte limit to band height, tile width and queue
+//! depths. Memory is bounded here and only here.
+//!
+//! Model, following the data through the stages (`W` frame width, `h` halo,
+//! `window = band + 2h`, sizes in the file's own sample types unless noted):
+//!
+//! * reader cache: decoded blocks covering one window, every channel:
+//!   `W × (window + 2·block_rows) × bytes_all`;
+//! * one band input = filter channels over the window + other channels over
+//!   the band; `depth + 1` of them queued or being read, one being filtered;
+//! * the filter stage's `f32` planes of the filter channels over the window;
+//! * tile working sets: `threads × 4 × (tile + 2h) × window × filter_planes × 4`
+//!   (cropped inputs plus the filter's intermediates);
+//! * band outputs (`f32` denoised channels plus the rest), `depth + 2` of them
+//!   in flight, and the writer's pending rows (two output blocks, 4 bytes per sample);
+//! * a fixed allowance for the program, thread stacks and allocator slack.
+
+use crate::error::Error;
+
+/// Fixed allowance for code, stacks and allocator slack (the binary's own
+/// peak on a tiny frame is about 11 MiB).
+pub const BASE_BYTES: u64 = 12 << 20;
+
+/// What the budget needs to know about the frame and pipeline.
+#[derive(Clone, Copy, Debug)]
+pub struct BudgetInput {
+    /// Frame width in pixels.
+    pub width: usize,
+    /// Frame height in pixels.
+    pub height: usize,
+    /// Halo of the pipeline.
+    pub halo: usize,
+    /// Channels in the file (all are read and written).
+    pub channels: usize,
+    /// Bytes per pixel of all channels, in the file's sample types.
+    pub bytes_all: usize,
+    /// Channels the filter reads.
+    pub filter_channels: usize,
+    /// Bytes per pixel of the channels the filter reads, in the file's types.
+    pub bytes_filter: usize,
+    /// Channels the filter writes (denoised, `f32`).
+    pub output_channels: usize,
+    /// Planes a tile's filter holds at once (inputs, intermediates, outputs).
+    pub filter_planes: usize,
+    /// Rows per block of the input file (scanline block height or tile height).
+    pub block_rows: usize,
+    /// Rows per block of the output file.
+    pub out_block_rows: usize,
+    /// Worker threads.
+    pub threads: usize,
+}
+
+/// The chosen schedule.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BandPlan {
+    /// Rows per band (tile height).
+    pub band_rows: usize,
+    /// Tile width.
+    pub tile_width: usize,
+    /// Capacity of each bounded queue between stages.
+    pub queue_depth: usize,
+    /// Estimated peak bytes.
+    pub estimate_bytes: u64,
+}
+
+/// Estimated peak bytes for a schedule.
+pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usize) -> u64 {
+    let w = b.width as u64;
+    let h = b.halo as u64;
+    let band = band_rows as u64;
+    let window = (band + 2 * h).min(b.height as u64);
+    let cache = w * (window + 2 * b.block_rows as u64) * b.bytes_all as u64;
+    let band_in = w * (window * b.bytes_filter as u64 + band * (b.bytes_all - b.bytes_filter) as u64);
+    let inputs = (depth as u64 + 2) * band_in;
+    let planes = w * window * b.filter_channels as u64 * 4;
+    let tile = tile_width.min(b.width) as u64;
+    let tiles = b.threads as u64 * 4 * (tile + 2 * h).min(w) * window * b.filter_planes as u64 * 4;
+    let band_out = w * band * (b.output_channels as u64 * 4 + b.bytes_all as u64);
+    let outputs = (depth as u64 + 2) * band_out + w * 2 * b.out_block_rows as u64 * b.channels as u64 * 4;
+    BASE_BYTES + cache + inputs + planes + tiles + outputs
+}
+
+/// The largest tiles (at most `tile_size`) that fit in `limit_bytes`.
+pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandPlan, Error> {
+    let depth = 1;
+    let mut band = tile_size.max(1).min(b.height.max(1));
+    let mut tile_w = tile_size.max(1).min(b.width.max(1));
+    loop {
+        let est = estimate(b, band, tile_w, depth);
+        if est <= limit_bytes {
+            return Ok(BandPlan { band_rows: band, tile_width: tile_w, queue_depth: depth, estimate_bytes: est });
+        }
+        if band == 1 && tile_w == 1 {
+            return Err(Error::Budget { needed: est, limit: limit_bytes });
+        }
+        // Shrink the dimension that costs more.
+        if band > 1 && (band >= tile_w || tile_w == 1) {
+            band = band.div_ceil(2).max(1);
+        } else {
+            tile_w = tile_w.div_ceil(2).max(1);
+        }
+    }
+}
+
+/// A default limit: half of the memory available now (at least 256 MiB).
+pub fn default_limit_bytes() -> u64 {
+    let avail = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
+        s.lines()
+            .find(|l| l.starts_with("MemAvailable:"))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|kb| kb.parse::<u64>().ok())
+    });
+    avail.map_or(4 << 30, |kb| (kb * 1024 / 2).max(256 << 20))
+}
+
+/// Parse `512M`, `2G`, `1.5GiB`, `300000000` into bytes.
+pub fn parse_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let n: f64 = num.parse().map_err(|_| format!("{s:?} is not a size (e.g. 512M, 2G)"))?;
+    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kb" | "kib" => 1024.0,
+        "m" | "mb" | "mib" => 1024.0 * 1024.0,
+        "g" | "gb" | "gib" => 1024.0 * 1024.0 * 1024.0,
+        "t" | "tb" | "tib" => 1024.0f64.powi(4),
+        other => {
+            return Err(format!("unknown size unit {other:?} in {s:?} (use K, M, G, T)"));
+        }
+    };
+    let bytes = n * mult;
+    if !bytes.is_finite() || bytes < 1.0 {
+        return Err(format!("{s:?} is not a positive size"));
+    }
+    Ok(bytes as u64)
+}
+
+/// The peak resident memory of this process so far (Linux `VmHWM`), in bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse::<u64>().ok().map(|kb| kb * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shared scenes' layout: 38 channels (24 half, 14 float), 16 read by the filter.
+    fn input(width: usize, height: usize) -> BudgetInput {
+        BudgetInput {
+            width,
+            height,
+            halo: 21,
+            channels: 38,
+            bytes_all: 24 * 2 + 14 * 4,
+            filter_channels: 16,
+            bytes_filter: 9 * 2 + 7 * 4,
+            output_channels: 3,
+            filter_planes: 22,
+            block_rows: 16,
+            out_block_rows: 16,
+            threads: 2,
+        }
+    }
+
+    #[test]
+    fn plan_fits_the_limit_and_shrinks_tiles() {
+        let b = input(16384, 16384);
+        let big = plan(&b, 256, 8 << 30).unwrap();
+        assert_eq!((big.band_rows, big.tile_width), (256, 256));
+        let small = plan(&b, 256, 512 << 20).unwrap();
+        assert!(small.estimate_bytes <= 512 << 20);
+        assert!(small.band_rows < 256);
+        let e = plan(&b, 256, 32 << 20).unwrap_err().to_string();
+        assert!(e.contains("memory limit"), "{e}");
+    }
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("512M").unwrap(), 512 << 20);
+        assert_eq!(parse_size("2G").unwrap(), 2 << 30);
+        assert_eq!(parse_size("1.5GiB").unwrap(), 3 << 29);
+        assert_eq!(parse_size("1000").unwrap(), 1000);
+        assert!(parse_size("12Q").is_err());
+        assert!(parse_size("0").is_err());
+    }
+}

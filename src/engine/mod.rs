@@ -1,0 +1,382 @@
+//! The streaming tiled engine: the only module that knows threads.
+//!
+//! A frame flows through in row bands. The **reader** (the calling
+//! [`RowSource`]) produces, for each band, the filter's channels over the band
+//! plus the halo above and below, and the other channels over the band; the
+//! **filter** stage cuts the band into tiles and filters them in parallel
+//! (rayon), each tile reading only `(tile ⊕ halo) ∩ frame`; the **writer**
+//! hands complete rows, in increasing y, to the [`RowSink`]. Bounded
+//! `crossbeam-channel` queues connect the stages, so a slow stage holds the
+//! others back and memory stays within the [`budget`]. Because every filter
+//! stage is defined on frame coordinates (see `filter`), the output equals
+//! whole-frame filtering bit for bit, whatever the tile size or thread count.
+
+pub mod budget;
+
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::bounded;
+use rayon::prelude::*;
+use tracing::{debug, info, info_span};
+
+use crate::error::Error;
+use crate::exrio::roles::ChannelRoles;
+use crate::filter::{self, InputShape, Params, Pipeline};
+use crate::geom::Rect;
+use crate::image::{ChannelRows, Plane, Samples};
+use budget::{BandPlan, BudgetInput};
+
+/// Where the engine reads rows from (a file, a renderer, ...).
+pub trait RowSource: Send {
+    /// The frame's data window.
+    fn data_window(&self) -> Rect;
+    /// Channel names, in the order `read_rows` indexes them.
+    fn channel_names(&self) -> Vec<String>;
+    /// Rows per storage block (a hint for the memory budget).
+    fn block_rows(&self) -> usize {
+        16
+    }
+    /// Bytes per sample of each channel as the source stores them (a hint
+    /// for the memory budget; 4 when unknown).
+    fn sample_bytes(&self) -> Vec<usize> {
+        vec![4; self.channel_names().len()]
+    }
+    /// The given channels over full-width `rows` (inside the data window).
+    /// Calls come with non-decreasing `rows.y0`; consecutive requests overlap
+    /// by the halo.
+    fn read_rows(&mut self, channels: &[usize], rows: Rect) -> Result<Vec<ChannelRows>, Error>;
+}
+
+/// Where the engine writes denoised rows.
+pub trait RowSink: Send {
+    /// The next full-width rows of every channel (in the source's channel
+    /// order), in increasing y, each row exactly once.
+    fn write_rows(&mut self, rows: Vec<ChannelRows>) -> Result<(), Error>;
+    /// All rows were written: complete the output.
+    fn finish(&mut self) -> Result<(), Error>;
+}
+
+/// How to stream.
+#[derive(Clone, Copy, Debug)]
+pub struct StreamOptions {
+    /// Tile size in pixels (the tile height is the band height).
+    pub tile_size: usize,
+    /// Worker threads (0 = one per core).
+    pub threads: usize,
+    /// Memory limit in bytes.
+    pub memory_limit: u64,
+    /// Write denoised channels as f16.
+    pub half: bool,
+    /// Rows per block of the sink (a hint for the memory budget).
+    pub out_block_rows: usize,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        StreamOptions {
+            tile_size: 256,
+            threads: 0,
+            memory_limit: budget::default_limit_bytes(),
+            half: false,
+            out_block_rows: 16,
+        }
+    }
+}
+
+/// What a streaming run did.
+#[derive(Clone, Debug)]
+pub struct StreamReport {
+    /// The schedule chosen by the budget.
+    pub plan: BandPlan,
+    /// The pipeline's halo.
+    pub halo: usize,
+    /// Bands processed.
+    pub bands: usize,
+    /// Tiles filtered.
+    pub tiles: usize,
+    /// Pixels filtered including halo recomputation, over output pixels
+    /// (1.0 = no overhead): `sum over tiles of |(tile ⊕ halo) ∩ frame| / |frame|`.
+    pub halo_overhead: f64,
+    /// Time the reader spent reading and decoding.
+    pub read_time: Duration,
+    /// Time the filter stage spent filtering.
+    pub filter_time: Duration,
+    /// Time the writer spent handing rows to the sink.
+    pub write_time: Duration,
+}
+
+struct BandIn {
+    band: Rect,
+    /// The filter's channels over `(band ⊕ halo rows) ∩ frame`.
+    filter_rows: Vec<ChannelRows>,
+    /// The other channels over the band.
+    other_rows: Vec<ChannelRows>,
+}
+
+/// Indices of the source's channels that the roles use, and which are denoised outputs.
+struct ChannelPlan {
+    filter_idx: Vec<usize>,
+    other_idx: Vec<usize>,
+    output_idx: Vec<usize>,
+}
+
+fn channel_plan(names: &[String], roles: &ChannelRoles) -> Result<ChannelPlan, Error> {
+    let index = |n: &str| {
+        names
+            .iter()
+            .position(|c| c == n)
+            .ok_or_else(|| Error::InvalidInput(format!("channel {n} is not in the source")))
+    };
+    let mut filter_idx = Vec::new();
+    for n in roles.inputs_channels() {
+        let i = index(&n)?;
+        if !filter_idx.contains(&i) {
+            filter_idx.push(i);
+        }
+    }
+    let other_idx = (0..names.len()).filter(|i| !filter_idx.contains(i)).collect();
+    let output_idx = roles.outputs().iter().map(|n| index(n)).collect::<Result<_, _>>()?;
+    Ok(ChannelPlan { filter_idx, other_idx, output_idx })
+}
+
+/// Denoise a frame from `source` to `sink` in bounded memory.
+pub fn denoise_stream(
+    source: &mut dyn RowSource,
+    sink: &mut dyn RowSink,
+    roles: &ChannelRoles,
+    params: &Params,
+    opts: &StreamOptions,
+) -> Result<StreamReport, Error> {
+    params.validate()?;
+    let frame = source.data_window();
+    let names = source.channel_names();
+    let cp = channel_plan(&names, roles)?;
+    let sample_bytes = source.sample_bytes();
+    let shape = InputShape {
+        feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
+        layers: roles.layers.len(),
+    };
+    let halo = Pipeline::new(*params, shape).halo();
+    let threads =
+        if opts.threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { opts.threads };
+    let plan = budget::plan(
+        &BudgetInput {
+            width: frame.width(),
+            height: frame.height(),
+            halo,
+            channels: names.len(),
+            bytes_all: sample_bytes.iter().sum(),
+            filter_channels: cp.filter_idx.len(),
+            bytes_filter: cp.filter_idx.iter().map(|&i| sample_bytes[i]).sum(),
+            output_channels: cp.output_idx.len(),
+            filter_planes: cp.filter_idx.len() + 2 * cp.output_idx.len(),
+            block_rows: source.block_rows(),
+            out_block_rows: opts.out_block_rows,
+            threads,
+        },
+        opts.tile_size,
+        opts.memory_limit,
+    )?;
+    info!(
+        "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, estimated peak {:.1} MiB of {:.1} MiB allowed",
+        plan.band_rows,
+        plan.tile_width,
+        plan.band_rows,
+        plan.queue_depth,
+        plan.estimate_bytes as f64 / 1048576.0,
+        opts.memory_limit as f64 / 1048576.0
+    );
+    let pool =
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::Internal(e.to_string()))?;
+    let bands = frame.row_bands(plan.band_rows);
+    let n_bands = bands.len();
+
+    let (in_tx, in_rx) = bounded::<Result<BandIn, Error>>(plan.queue_depth);
+    let (out_tx, out_rx) = bounded::<Result<Vec<ChannelRows>, Error>>(plan.queue_depth);
+    let mut report = StreamReport {
+        plan,
+        halo,
+        bands: n_bands,
+        tiles: 0,
+        halo_overhead: 0.0,
+        read_time: Duration::ZERO,
+        filter_time: Duration::ZERO,
+        write_time: Duration::ZERO,
+    };
+    let names_ref = &names;
+    let cp_ref = &cp;
+    let pool_ref = &pool;
+
+    let (read_res, filter_res, write_res) = std::thread::scope(|s| {
+        // Reader.
+        let reader = s.spawn(move || {
+            let mut spent = Duration::ZERO;
+            for (i, band) in bands.into_iter().enumerate() {
+                let _span = info_span!("read", band = i).entered();
+                let t = Instant::now();
+                let window = Rect { y0: band.y0 - halo as i64, y1: band.y1 + halo as i64, ..band }.intersect(&frame);
+                let res = pool_ref.install(|| -> Result<BandIn, Error> {
+                    let filter_rows = source.read_rows(&cp_ref.filter_idx, window)?;
+                    let other_rows = source.read_rows(&cp_ref.other_idx, band)?;
+                    Ok(BandIn { band, filter_rows, other_rows })
+                });
+                spent += t.elapsed();
+                let failed = res.is_err();
+                if in_tx.send(res).is_err() || failed {
+                    break;
+                }
+            }
+            spent
+        });
+        // Filter.
+        let filter = s.spawn(move || {
+            let mut spent = Duration::ZERO;
+            let mut tiles = 0usize;
+            let mut filtered_px = 0usize;
+            for msg in in_rx {
+                let t = Instant::now();
+                let res = msg.and_then(|b| {
+                    let _span = info_span!("filter", y0 = b.band.y0).entered();
+                    filter_band(
+                        b,
+                        frame,
+                        halo,
+                        &plan,
+                        roles,
+                        params,
+                        names_ref,
+                        cp_ref,
+                        pool_ref,
+                        opts.half,
+                        &mut tiles,
+                        &mut filtered_px,
+                    )
+                });
+                spent += t.elapsed();
+                let failed = res.is_err();
+                if out_tx.send(res).is_err() || failed {
+                    break;
+                }
+            }
+            (spent, tiles, filtered_px)
+        });
+        // Writer (this thread).
+        let mut spent = Duration::ZERO;
+        let mut written = 0usize;
+        let mut result: Result<(), Error> = Ok(());
+        for msg in out_rx.iter() {
+            let t = Instant::now();
+            let _span = info_span!("write", band = written).entered();
+            let r = msg.and_then(|rows| sink.write_rows(rows));
+            spent += t.elapsed();
+            if let Err(e) = r {
+                result = Err(e);
+                break;
+            }
+            written += 1;
+        }
+        drop(out_rx);
+        let read = reader.join().map_err(|_| Error::Internal("the reader thread panicked".into()));
+        let filt = filter.join().map_err(|_| Error::Internal("the filter thread panicked".into()));
+        if result.is_ok() && written != n_bands {
+            result = Err(Error::Internal(format!("only {written} of {n_bands} bands were produced")));
+        }
+        (read, filt, result.map(|_| spent))
+    });
+    report.read_time = read_res?;
+    let (ft, tiles, filtered_px) = filter_res?;
+    report.filter_time = ft;
+    report.tiles = tiles;
+    report.halo_overhead = filtered_px as f64 / frame.area().max(1) as f64;
+    report.write_time = write_res?;
+    let t = Instant::now();
+    sink.finish()?;
+    report.write_time += t.elapsed();
+    info!(
+        "streamed {} bands, {} tiles: read {:.2}s, filter {:.2}s, write {:.2}s (stage busy times; stages overlap); halo recomputation x{:.3}",
+        report.bands,
+        report.tiles,
+        report.read_time.as_secs_f64(),
+        report.filter_time.as_secs_f64(),
+        report.write_time.as_secs_f64(),
+        report.halo_overhead
+    );
+    Ok(report)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn filter_band(
+    b: BandIn,
+    frame: Rect,
+    halo: usize,
+    plan: &BandPlan,
+    roles: &ChannelRoles,
+    params: &Params,
+    names: &[String],
+    cp: &ChannelPlan,
+    pool: &rayon::ThreadPool,
+    half: bool,
+    tiles_done: &mut usize,
+    filtered_px: &mut usize,
+) -> Result<Vec<ChannelRows>, Error> {
+    let BandIn { band, filter_rows, other_rows } = b;
+    // Filter channels that are carried (not denoised) go out over the band only.
+    let mut out: Vec<Option<ChannelRows>> = (0..names.len()).map(|_| None).collect();
+    for (&i, r) in cp.filter_idx.iter().zip(&filter_rows) {
+        if !cp.output_idx.contains(&i) {
+            out[i] = Some(r.rows(band.y0, band.y1));
+        }
+    }
+    // f32 planes, each converted once and moved into the inputs at its last use.
+    let uses = roles.inputs_channels();
+    let mut planes: Vec<(String, Option<Plane>, usize)> = Vec::new();
+    for (&i, r) in cp.filter_idx.iter().zip(filter_rows) {
+        let n = uses.iter().filter(|u| **u == names[i]).count();
+        planes.push((names[i].clone(), Some(r.to_plane()), n));
+    }
+    let inputs = roles.inputs_with(|n| {
+        let slot = planes.iter_mut().find(|(name, _, _)| name == n).expect("role channel read");
+        slot.2 -= 1;
+        if slot.2 == 0 { slot.1.take().expect("plane still there") } else { slot.1.clone().expect("plane still there") }
+    });
+    drop(planes);
+    let tiles = band.tiles(plan.tile_width, plan.band_rows);
+    *tiles_done += tiles.len();
+    *filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
+    let results: Vec<(Rect, filter::Denoised)> = pool.install(|| {
+        tiles
+            .par_iter()
+            .map(|t| {
+                let window = inputs.crop(t.expand(halo).intersect(&frame));
+                filter::denoise_region(&window, frame, *t, params).map(|d| (*t, d))
+            })
+            .collect::<Result<_, _>>()
+    })?;
+    drop(inputs);
+    // Assemble the denoised channels over the band, in roles.outputs() order.
+    let mut out_planes: Vec<Plane> = cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect();
+    for (_, d) in &results {
+        let planes = d.colour.iter().chain(d.layers.iter().flatten());
+        for (dst, src) in out_planes.iter_mut().zip(planes) {
+            dst.paste(src);
+        }
+    }
+    let n_tiles = results.len();
+    drop(results);
+    for (&i, p) in cp.output_idx.iter().zip(out_planes) {
+        let samples = if half {
+            Samples::F16(p.data().iter().map(|&v| half::f16::from_f32(v)).collect())
+        } else {
+            Samples::F32(p.into_vec())
+        };
+        out[i] = Some(ChannelRows { rect: band, samples });
+    }
+    for (&i, r) in cp.other_idx.iter().zip(other_rows) {
+        out[i] = Some(r);
+    }
+    debug!("band {band:?}: {n_tiles} tiles");
+    out.into_iter()
+        .enumerate()
+        .map(|(i, r)| r.ok_or_else(|| Error::Internal(format!("channel {} missing from band output", names[i]))))
+        .collect()
+}

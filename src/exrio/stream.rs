@@ -1,0 +1,493 @@
+//! Streaming EXR access for the tiled engine: a memory-mapped source that
+//! decodes only the chunks a row window needs (located through the offset
+//! table, decompressed in parallel, any line order, scanline or tiled), and a
+//! sink that writes scanline chunks in increasing y as their rows complete.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Cursor};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+
+use exr::block::chunk::Chunk;
+use exr::block::reader::ChunksReader;
+use exr::block::writer::ChunksWriter;
+use exr::block::{BlockIndex, UncompressedBlock};
+use exr::math::Vec2;
+use exr::meta::attribute::{ChannelDescription, ChannelList, LineOrder, SampleType, Text};
+use exr::meta::header::Header;
+use exr::meta::{BlockDescription, MetaData};
+use memmap2::Mmap;
+use rayon::prelude::*;
+use smallvec::SmallVec;
+
+use super::{AtomicTarget, OutputCompression, SampleKind};
+use crate::engine::{RowSink, RowSource};
+use crate::error::Error;
+use crate::geom::Rect;
+use crate::image::{ChannelRows, Samples};
+
+fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Exr { path: path.to_path_buf(), message: e.to_string() }
+}
+
+fn kind_of(t: SampleType) -> SampleKind {
+    match t {
+        SampleType::F16 => SampleKind::F16,
+        SampleType::F32 => SampleKind::F32,
+        SampleType::U32 => SampleKind::U32,
+    }
+}
+
+/// One decoded block: its rectangle (frame coordinates) and every channel's samples.
+struct DecodedBlock {
+    rect: Rect,
+    channels: Vec<Samples>,
+}
+
+/// A memory-mapped EXR file read row window by row window.
+pub struct ExrSource {
+    path: PathBuf,
+    mmap: Mmap,
+    header: Header,
+    data_window: Rect,
+    names: Vec<String>,
+    kinds: Vec<SampleKind>,
+    cache: BTreeMap<(i64, i64), DecodedBlock>,
+    /// Chunks decoded so far (a chunk decoded twice counts twice).
+    pub chunks_decoded: usize,
+}
+
+impl ExrSource {
+    /// Map `path` and read its header (single-part, flat, full-resolution channels).
+    pub fn open(path: &Path) -> Result<ExrSource, Error> {
+        let file = File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+        // SAFETY: the file is opened read-only and only read through this map; if
+        // another process truncates it meanwhile, reads may fault (SIGBUS), as for
+        // any memory-mapped reader. We never write through the map.
+        let mmap = unsafe { Mmap::map(&file) }.map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+        let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&mmap[..]), false)
+            .map_err(|e| exr_err(path, format!("not a readable EXR file: {e}")))?;
+        let header = super::check_supported(path, &meta)?;
+        let pos = header.own_attributes.layer_position;
+        let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, header.layer_size.0, header.layer_size.1);
+        let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
+        let kinds = header.channels.list.iter().map(|c| kind_of(c.sample_type)).collect();
+        Ok(ExrSource {
+            path: path.to_path_buf(),
+            mmap,
+            header,
+            data_window,
+            names,
+            kinds,
+            cache: BTreeMap::new(),
+            chunks_decoded: 0,
+        })
+    }
+
+    /// The file's header (for copying attributes to the output).
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// Storage type of each channel, in channel order.
+    pub fn kinds(&self) -> &[SampleKind] {
+        &self.kinds
+    }
+
+    /// Rows per block (scanline block height, or tile height).
+    pub fn block_rows(&self) -> usize {
+        match self.header.blocks {
+            BlockDescription::ScanLines => self.header.compression.scan_lines_per_block(),
+            BlockDescription::Tiles(t) => t.tile_size.1,
+        }
+    }
+
+    fn decode(&self, block: UncompressedBlock) -> Result<DecodedBlock, Error> {
+        let dw = self.data_window;
+        let BlockIndex { pixel_position, pixel_size, .. } = block.index;
+        let rect = Rect::from_origin_size(
+            dw.x0 + pixel_position.0 as i64,
+            dw.y0 + pixel_position.1 as i64,
+            pixel_size.0,
+            pixel_size.1,
+        );
+        let n = rect.area();
+        let mut channels: Vec<Samples> = self
+            .kinds
+            .iter()
+            .map(|k| match k {
+                SampleKind::F16 => Samples::F16(Vec::with_capacity(n)),
+                SampleKind::F32 => Samples::F32(Vec::with_capacity(n)),
+                SampleKind::U32 => Samples::U32(Vec::with_capacity(n)),
+            })
+            .collect();
+        // Lines come in file order: for each row, for each channel.
+        for line in block.lines(&self.header.channels) {
+            let bytes = line.value;
+            match &mut channels[line.location.channel] {
+                Samples::F16(v) => v.extend(bytes.chunks_exact(2).map(|b| half::f16::from_ne_bytes([b[0], b[1]]))),
+                Samples::F32(v) => {
+                    v.extend(bytes.chunks_exact(4).map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+                }
+                Samples::U32(v) => {
+                    v.extend(bytes.chunks_exact(4).map(|b| u32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+                }
+            }
+        }
+        if channels.iter().any(|c| c.len() != n) {
+            return Err(exr_err(
+                &self.path,
+                format!("block at {:?} decoded to the wrong number of samples", (rect.x0, rect.y0)),
+            ));
+        }
+        Ok(DecodedBlock { rect, channels })
+    }
+
+    /// Decode every level-0 block intersecting `rows` that is not cached yet.
+    fn fill_cache(&mut self, rows: Rect) -> Result<(), Error> {
+        let dw = self.data_window;
+        // Blocks entirely above the request are no longer needed (requests go down the frame).
+        self.cache.retain(|_, b| b.rect.y1 > rows.y0);
+        let cached: Vec<(i64, i64)> = self.cache.keys().copied().collect();
+        let wanted = |block: &BlockIndex| {
+            let y0 = dw.y0 + block.pixel_position.1 as i64;
+            let y1 = y0 + block.pixel_size.1 as i64;
+            let x0 = dw.x0 + block.pixel_position.0 as i64;
+            block.level == Vec2(0, 0) && y1 > rows.y0 && y0 < rows.y1 && !cached.contains(&(y0, x0))
+        };
+        let reader = exr::block::read(Cursor::new(&self.mmap[..]), false).map_err(|e| exr_err(&self.path, e))?;
+        let filtered = reader
+            .filter_chunks(false, |_, _, block| wanted(&block))
+            .map_err(|e| exr_err(&self.path, format!("bad offset table: {e}")))?;
+        let meta: MetaData = filtered.meta_data().clone();
+        let chunks: Vec<Chunk> = filtered
+            .collect::<Result<_, _>>()
+            .map_err(|e| exr_err(&self.path, format!("could not read a chunk: {e}")))?;
+        self.chunks_decoded += chunks.len();
+        let blocks: Vec<UncompressedBlock> = chunks
+            .into_par_iter()
+            .map(|c| UncompressedBlock::decompress_chunk(c, &meta, false))
+            .collect::<Result<_, _>>()
+            .map_err(|e| exr_err(&self.path, format!("could not decompress a chunk: {e}")))?;
+        let decoded: Vec<DecodedBlock> = blocks.into_par_iter().map(|b| self.decode(b)).collect::<Result<_, _>>()?;
+        for b in decoded {
+            self.cache.insert((b.rect.y0, b.rect.x0), b);
+        }
+        // Compressed pages already decoded need not stay resident: drop them from
+        // this process's mapping (they are re-read from the file if touched again).
+        // SAFETY: the mapping is read-only and file-backed; MADV_DONTNEED only
+        // discards our view of clean pages, and no slice of the map is alive here.
+        #[cfg(unix)]
+        unsafe {
+            let _ = self.mmap.unchecked_advise(memmap2::UncheckedAdvice::DontNeed);
+        }
+        Ok(())
+    }
+}
+
+impl RowSource for ExrSource {
+    fn data_window(&self) -> Rect {
+        self.data_window
+    }
+
+    fn channel_names(&self) -> Vec<String> {
+        self.names.clone()
+    }
+
+    fn block_rows(&self) -> usize {
+        ExrSource::block_rows(self)
+    }
+
+    fn sample_bytes(&self) -> Vec<usize> {
+        self.kinds.iter().map(|k| if *k == SampleKind::F16 { 2 } else { 4 }).collect()
+    }
+
+    fn read_rows(&mut self, channels: &[usize], rows: Rect) -> Result<Vec<ChannelRows>, Error> {
+        let rows = Rect { x0: self.data_window.x0, x1: self.data_window.x1, ..rows }.intersect(&self.data_window);
+        self.fill_cache(rows)?;
+        let w = rows.width();
+        let mut out = Vec::with_capacity(channels.len());
+        for &c in channels {
+            let mut samples = Samples::F32(Vec::new());
+            let mut first = true;
+            for y in rows.y0..rows.y1 {
+                for b in self.cache.values().filter(|b| b.rect.y0 <= y && y < b.rect.y1) {
+                    let src = &b.channels[c];
+                    if first {
+                        samples = src.empty_like(rows.area());
+                        first = false;
+                    }
+                    let off = (y - b.rect.y0) as usize * b.rect.width();
+                    samples.extend_from(src, off..off + b.rect.width());
+                }
+            }
+            if samples.len() != rows.area() {
+                return Err(exr_err(
+                    &self.path,
+                    format!("rows {}..{} are not completely covered by the file's chunks", rows.y0, rows.y1),
+                ));
+            }
+            debug_assert_eq!(samples.len(), w * rows.height());
+            out.push(ChannelRows { rect: rows, samples });
+        }
+        Ok(out)
+    }
+}
+
+/// Description of an output channel.
+#[derive(Clone, Debug)]
+pub struct SinkChannel {
+    /// Name.
+    pub name: String,
+    /// Storage type.
+    pub kind: SampleKind,
+}
+
+enum SinkMsg {
+    Rows(Vec<ChannelRows>),
+}
+
+/// Writes full-width rows, in increasing y, to a scanline EXR file.
+///
+/// The file is written to a temporary file beside `path` by a writer thread
+/// (which compresses chunks in parallel) and renamed into place by
+/// [`RowSink::finish`]; if the sink is dropped unfinished, the temporary file
+/// is removed and nothing appears at `path`.
+pub struct ExrSink {
+    path: PathBuf,
+    target: Option<AtomicTarget>,
+    tx: Option<mpsc::SyncSender<SinkMsg>>,
+    thread: Option<JoinHandle<Result<(), Error>>>,
+    order: Vec<usize>,
+}
+
+impl ExrSink {
+    /// Create the sink. `template` provides attributes to copy (display window,
+    /// layer attributes, ...); the data window, channels and encoding are set here.
+    pub fn create(
+        path: &Path,
+        data_window: Rect,
+        channels: &[SinkChannel],
+        compression: OutputCompression,
+        template: Option<&Header>,
+    ) -> Result<ExrSink, Error> {
+        if channels.is_empty() {
+            return Err(exr_err(path, "refusing to write a frame with no channels"));
+        }
+        if data_window.is_empty() {
+            return Err(exr_err(path, "refusing to write an empty data window"));
+        }
+        // EXR stores channels sorted by name; remember how to reorder rows.
+        let mut order: Vec<usize> = (0..channels.len()).collect();
+        order.sort_by(|&a, &b| channels[a].name.cmp(&channels[b].name));
+        let list: SmallVec<[ChannelDescription; 5]> = order
+            .iter()
+            .map(|&i| {
+                let c = &channels[i];
+                let t = match c.kind {
+                    SampleKind::F16 => SampleType::F16,
+                    SampleKind::F32 => SampleType::F32,
+                    SampleKind::U32 => SampleType::U32,
+                };
+                let name = Text::new_or_none(&c.name)
+                    .ok_or_else(|| exr_err(path, format!("channel name {:?} cannot be stored", c.name)))?;
+                Ok(ChannelDescription::new(name, t, t != SampleType::F16 && t != SampleType::F32))
+            })
+            .collect::<Result<_, Error>>()?;
+        let size = Vec2(data_window.width(), data_window.height());
+        let mut header = Header::new(Text::from("main"), size, list).with_encoding(
+            compression.to_exr(),
+            BlockDescription::ScanLines,
+            LineOrder::Increasing,
+        );
+        if let Some(t) = template {
+            header.shared_attributes = t.shared_attributes.clone();
+            header.own_attributes = t.own_attributes.clone();
+        } else {
+            header.shared_attributes.display_window =
+                exr::meta::attribute::IntegerBounds::new(Vec2(data_window.x0 as i32, data_window.y0 as i32), size);
+        }
+        header.own_attributes.layer_position = Vec2(data_window.x0 as i32, data_window.y0 as i32);
+        header.channels = ChannelList::new(header.channels.list.clone());
+
+        let target = AtomicTarget::new(path);
+        let file = File::create(&target.tmp).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+        let (tx, rx) = mpsc::sync_channel::<SinkMsg>(1);
+        let thread_path = path.to_path_buf();
+        let thread = std::thread::Builder::new()
+            .name("exr-writer".into())
+            .spawn(move || write_thread(file, header, data_window, rx, &thread_path))
+            .map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+        Ok(ExrSink { path: path.to_path_buf(), target: Some(target), tx: Some(tx), thread: Some(thread), order })
+    }
+
+    fn join(&mut self) -> Result<(), Error> {
+        self.tx = None;
+        match self.thread.take() {
+            Some(t) => {
+                t.join().map_err(|_| Error::Internal(format!("{}: the writer thread panicked", self.path.display())))?
+            }
+            None => Ok(()),
+        }
+    }
+}
+
+/// Collects rows in increasing y and cuts them into scanline blocks.
+struct ChunkAssembler {
+    dw: Rect,
+    lines_per_block: usize,
+    next_y: i64,
+    next_chunk: usize,
+    /// Rows received but not yet written, per channel (sorted order), all over the same rows.
+    pending: Vec<ChannelRows>,
+}
+
+impl ChunkAssembler {
+    fn push(&mut self, rows: Vec<ChannelRows>) -> Result<(), String> {
+        let expected_y0 = self.pending.first().map_or(self.next_y, |p| p.rect.y1);
+        if rows.iter().any(|r| {
+            r.rect.y0 != expected_y0
+                || r.rect.x0 != self.dw.x0
+                || r.rect.x1 != self.dw.x1
+                || r.samples.len() != r.rect.area()
+        }) {
+            return Err(format!("rows must arrive full-width in increasing y, starting at row {expected_y0}"));
+        }
+        if self.pending.is_empty() {
+            self.pending = rows;
+        } else {
+            for (p, r) in self.pending.iter_mut().zip(rows) {
+                let mut s = p.samples.empty_like(p.samples.len() + r.samples.len());
+                s.extend_from(&p.samples, 0..p.samples.len());
+                s.extend_from(&r.samples, 0..r.samples.len());
+                *p = ChannelRows { rect: Rect { y1: r.rect.y1, ..p.rect }, samples: s };
+            }
+        }
+        Ok(())
+    }
+
+    /// Every block whose rows are all here, with its chunk index.
+    fn ready_blocks(&mut self) -> Vec<(usize, UncompressedBlock)> {
+        let mut blocks = Vec::new();
+        let have = self.pending.first().map_or(self.next_y, |p| p.rect.y1);
+        while self.next_y < self.dw.y1 {
+            let end = (self.next_y + self.lines_per_block as i64).min(self.dw.y1);
+            if have < end {
+                break;
+            }
+            let mut data = Vec::new();
+            for y in self.next_y..end {
+                for rows in &self.pending {
+                    let w = rows.rect.width();
+                    let off = (y - rows.rect.y0) as usize * w;
+                    match &rows.samples {
+                        Samples::F16(v) => {
+                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
+                        }
+                        Samples::F32(v) => {
+                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
+                        }
+                        Samples::U32(v) => {
+                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
+                        }
+                    }
+                }
+            }
+            let index = BlockIndex {
+                layer: 0,
+                pixel_position: Vec2(0, (self.next_y - self.dw.y0) as usize),
+                pixel_size: Vec2(self.dw.width(), (end - self.next_y) as usize),
+                level: Vec2(0, 0),
+            };
+            blocks.push((self.next_chunk, UncompressedBlock { index, data }));
+            self.next_chunk += 1;
+            self.next_y = end;
+        }
+        let next_y = self.next_y;
+        for rows in self.pending.iter_mut() {
+            if rows.rect.y0 < next_y {
+                *rows = rows.rows(next_y, rows.rect.y1);
+            }
+        }
+        blocks
+    }
+
+    fn complete(&self) -> bool {
+        self.next_y >= self.dw.y1
+    }
+}
+
+fn write_thread(file: File, header: Header, dw: Rect, rx: mpsc::Receiver<SinkMsg>, path: &Path) -> Result<(), Error> {
+    let lines_per_block = header.compression.scan_lines_per_block();
+    let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pending: Vec::new() };
+    let mut bad_rows: Option<String> = None;
+    let mut writer = BufWriter::new(file);
+    let result = exr::block::write(&mut writer, smallvec::smallvec![header], true, |meta, chunk_writer| {
+        while let Ok(SinkMsg::Rows(rows)) = rx.recv() {
+            if let Err(e) = asm.push(rows) {
+                bad_rows = Some(e);
+                break;
+            }
+            let blocks = asm.ready_blocks();
+            let chunks: Vec<(usize, Chunk)> = blocks
+                .into_par_iter()
+                .map(|(i, b)| b.compress_to_chunk(&meta.headers).map(|c| (i, c)))
+                .collect::<Result<_, _>>()?;
+            for (i, c) in chunks {
+                chunk_writer.write_chunk(i, c)?;
+            }
+        }
+        Ok(())
+    });
+    if let Some(e) = bad_rows {
+        return Err(Error::InvalidInput(format!("{}: {e}", path.display())));
+    }
+    if !asm.complete() {
+        return Err(exr_err(path, "the frame's rows were not all delivered; no file written"));
+    }
+    result.map_err(|e| match e {
+        exr::error::Error::Io(io) => Error::Io { path: path.to_path_buf(), source: io },
+        other => exr_err(path, format!("could not encode: {other}")),
+    })?;
+    let file = writer.into_inner().map_err(|e| Error::Io { path: path.to_path_buf(), source: e.into_error() })?;
+    file.sync_all().map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    Ok(())
+}
+
+impl RowSink for ExrSink {
+    fn write_rows(&mut self, rows: Vec<ChannelRows>) -> Result<(), Error> {
+        if rows.len() != self.order.len() {
+            return Err(Error::InvalidInput(format!(
+                "{} channels of rows given, the sink has {}",
+                rows.len(),
+                self.order.len()
+            )));
+        }
+        let mut slots: Vec<Option<ChannelRows>> = rows.into_iter().map(Some).collect();
+        let sorted: Vec<ChannelRows> =
+            self.order.iter().map(|&i| slots[i].take().expect("each channel once")).collect();
+        let sent = self.tx.as_ref().map(|tx| tx.send(SinkMsg::Rows(sorted)).is_ok()).unwrap_or(false);
+        if !sent {
+            // The writer stopped: report its error.
+            self.join()?;
+            return Err(Error::Internal(format!("{}: the writer stopped", self.path.display())));
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), Error> {
+        self.join()?;
+        let mut target = self.target.take().ok_or_else(|| Error::Internal("sink finished twice".into()))?;
+        std::fs::rename(&target.tmp, &self.path).map_err(|e| Error::Io { path: self.path.clone(), source: e })?;
+        target.done = true;
+        Ok(())
+    }
+}
+
+impl Drop for ExrSink {
+    fn drop(&mut self) {
+        let _ = self.join();
+    }
+}
