@@ -12,6 +12,7 @@
 //! whole-frame filtering bit for bit, whatever the tile size or thread count.
 
 pub mod budget;
+pub mod synthetic;
 
 use std::time::{Duration, Instant};
 
