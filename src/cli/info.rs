@@ -1,10 +1,13 @@
-//! `nldenoise info FILE`: channels, their roles, and the filter plan.
-
-use std::path::PathBuf;
+//! `nldenoise info FILE`: channels, their roles, and the filter plan. Reads
+//! the header only (the pixels are never decoded), so it is instant on any
+//! frame size.
 
 use std::fmt::Write as _;
+use std::path::PathBuf;
 
 use clap::Args;
+use nldenoise::engine::{self, RowSource, StreamOptions, budget};
+use nldenoise::exrio::stream::ExrSource;
 use nldenoise::exrio::{self, roles};
 use nldenoise::filter::{InputShape, Pipeline};
 
@@ -15,9 +18,19 @@ use super::{ChannelArgs, FilterArgs};
 pub struct InfoArgs {
     /// EXR frame to describe.
     pub input: PathBuf,
-    /// Also print the filter plan: every stage's reach and the derived halo.
+    /// Also print the filter plan: every stage's reach, the derived halo, and
+    /// the streaming schedule for `--tile-size` and `--memory-limit`.
     #[arg(long)]
     pub plan: bool,
+    /// Tile size the streaming schedule starts from.
+    #[arg(long, default_value_t = 256)]
+    pub tile_size: usize,
+    /// Memory limit for the streaming schedule (default: half of the available memory).
+    #[arg(long, value_parser = budget::parse_size)]
+    pub memory_limit: Option<u64>,
+    /// Worker threads assumed by the schedule (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
     #[command(flatten)]
     pub filter: FilterArgs,
     #[command(flatten)]
@@ -25,8 +38,9 @@ pub struct InfoArgs {
 }
 
 pub fn run(a: InfoArgs) -> anyhow::Result<()> {
-    let frame = exrio::read_frame(&a.input)?;
-    let dw = frame.data_window;
+    let source = ExrSource::open(&a.input)?;
+    let dw = source.data_window();
+    let names = source.channel_names();
     let mut o = String::new();
     writeln!(o, "file: {}", a.input.display())?;
     writeln!(
@@ -39,13 +53,12 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
         dw.width(),
         dw.height()
     )?;
-    if let Some(l) = &frame.layout {
-        writeln!(o, "layout: {}, {} compression, {} line order", l.blocks, l.compression, l.line_order)?;
-    }
-    let roles = roles::detect(&a.input, &frame.channel_names(), &a.channels.options())?;
-    writeln!(o, "channels ({}):", frame.channels.len())?;
-    for c in &frame.channels {
-        writeln!(o, "  {:<24} {:<6} {}", c.name, c.kind.to_string(), roles.role_of(&c.name))?;
+    let l = exrio::layout_of(source.header());
+    writeln!(o, "layout: {}, {} compression, {} line order", l.blocks, l.compression, l.line_order)?;
+    let roles = roles::detect(&a.input, &names, &a.channels.options())?;
+    writeln!(o, "channels ({}):", names.len())?;
+    for (name, kind) in names.iter().zip(source.kinds()) {
+        writeln!(o, "  {:<24} {:<6} {}", name, kind.to_string(), roles.role_of(name))?;
     }
     writeln!(o, "denoiser will use:")?;
     writeln!(o, "  colour: {}", roles.colour.join(","))?;
@@ -59,13 +72,9 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
         writeln!(o, "  features: none (colour-only NL-means)")?;
     }
     for f in &roles.features {
-        writeln!(
-            o,
-            "  feature {}: {}{}",
-            f.name,
-            f.channels.join(","),
-            f.variance.as_ref().map_or(" (no variance)".to_string(), |v| format!(" with variance {}", v.join(",")))
-        )?;
+        let var =
+            f.variance.as_ref().map_or(" (no variance)".to_string(), |v| format!(" with variance {}", v.join(",")));
+        writeln!(o, "  feature {}: {}{var}", f.name, f.channels.join(","))?;
     }
     if roles.layers.is_empty() {
         writeln!(o, "  light layers: none (the beauty is filtered directly)")?;
@@ -78,13 +87,33 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     }
     if a.plan {
         let params = a.filter.params()?;
-        let inputs_shape = InputShape {
+        let shape = InputShape {
             feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
             layers: roles.layers.len(),
         };
         writeln!(o, "plan:")?;
-        for line in Pipeline::new(params, inputs_shape).describe() {
+        for line in Pipeline::new(params, shape).describe() {
             writeln!(o, "  {line}")?;
+        }
+        let opts = StreamOptions {
+            tile_size: a.tile_size.max(1),
+            threads: a.threads,
+            memory_limit: a.memory_limit.unwrap_or_else(budget::default_limit_bytes),
+            ..StreamOptions::default()
+        };
+        match engine::plan_stream(&source, &roles, &params, &opts) {
+            Ok((_, p, threads)) => writeln!(
+                o,
+                "  streaming: bands of {} rows, tiles {}x{}, {} threads, queue depth {}, estimated peak {:.1} MiB of {:.1} MiB",
+                p.band_rows,
+                p.tile_width,
+                p.band_rows,
+                threads,
+                p.queue_depth,
+                p.estimate_bytes as f64 / 1048576.0,
+                opts.memory_limit as f64 / 1048576.0
+            )?,
+            Err(e) => writeln!(o, "  streaming: {e}")?,
         }
     }
     super::out(&o)

@@ -140,15 +140,14 @@ fn channel_plan(names: &[String], roles: &ChannelRoles) -> Result<ChannelPlan, E
     Ok(ChannelPlan { filter_idx, other_idx, output_idx })
 }
 
-/// Denoise a frame from `source` to `sink` in bounded memory.
-pub fn denoise_stream(
-    source: &mut dyn RowSource,
-    sink: &mut dyn RowSink,
+/// The halo, the schedule the memory budget allows, and the thread count for
+/// streaming `source` with these roles, parameters and options.
+pub fn plan_stream(
+    source: &dyn RowSource,
     roles: &ChannelRoles,
     params: &Params,
     opts: &StreamOptions,
-) -> Result<StreamReport, Error> {
-    params.validate()?;
+) -> Result<(usize, BandPlan, usize), Error> {
     let frame = source.data_window();
     let names = source.channel_names();
     let cp = channel_plan(&names, roles)?;
@@ -178,6 +177,22 @@ pub fn denoise_stream(
         opts.tile_size,
         opts.memory_limit,
     )?;
+    Ok((halo, plan, threads))
+}
+
+/// Denoise a frame from `source` to `sink` in bounded memory.
+pub fn denoise_stream(
+    source: &mut dyn RowSource,
+    sink: &mut dyn RowSink,
+    roles: &ChannelRoles,
+    params: &Params,
+    opts: &StreamOptions,
+) -> Result<StreamReport, Error> {
+    params.validate()?;
+    let frame = source.data_window();
+    let names = source.channel_names();
+    let cp = channel_plan(&names, roles)?;
+    let (halo, plan, threads) = plan_stream(source, roles, params, opts)?;
     info!(
         "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, estimated peak {:.1} MiB of {:.1} MiB allowed",
         plan.band_rows,

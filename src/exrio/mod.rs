@@ -63,6 +63,16 @@ impl Channel {
         }
     }
 
+    /// Samples `range` (row-major indices) in their storage type.
+    pub fn rows_samples(&self, range: std::ops::Range<usize>) -> crate::image::Samples {
+        use crate::image::Samples;
+        match &self.samples {
+            FlatSamples::F16(v) => Samples::F16(v[range].to_vec()),
+            FlatSamples::F32(v) => Samples::F32(v[range].to_vec()),
+            FlatSamples::U32(v) => Samples::U32(v[range].to_vec()),
+        }
+    }
+
     /// The samples converted to `f32`.
     pub fn to_f32(&self) -> Vec<f32> {
         match &self.samples {
@@ -176,6 +186,18 @@ pub(crate) fn check_supported(
     Ok(header.clone())
 }
 
+/// How a file is laid out, from its header.
+pub fn layout_of(header: &exr::meta::header::Header) -> Layout {
+    Layout {
+        blocks: match header.blocks {
+            exr::meta::BlockDescription::ScanLines => "scanline".into(),
+            exr::meta::BlockDescription::Tiles(t) => format!("tiled {}x{}", t.tile_size.0, t.tile_size.1),
+        },
+        compression: compression_name(header.compression),
+        line_order: format!("{:?}", header.line_order).to_lowercase(),
+    }
+}
+
 /// Read a single-part, flat (non-deep) EXR frame, scanline or tiled, any line
 /// order, with f16, f32 or u32 channels. Only the largest resolution level of
 /// a mip-mapped file is read.
@@ -185,16 +207,7 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
         other => exr_err(path, format!("not a readable EXR file: {other}")),
     })?;
     let header = check_supported(path, &meta)?;
-    let layout = Layout {
-        blocks: match header.blocks {
-            exr::meta::BlockDescription::ScanLines => "scanline".into(),
-            exr::meta::BlockDescription::Tiles(t) => {
-                format!("tiled {}x{}", t.tile_size.0, t.tile_size.1)
-            }
-        },
-        compression: compression_name(header.compression),
-        line_order: format!("{:?}", header.line_order).to_lowercase(),
-    };
+    let layout = layout_of(&header);
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

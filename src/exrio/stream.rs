@@ -491,3 +491,57 @@ impl Drop for ExrSink {
         let _ = self.join();
     }
 }
+
+/// A frame held in memory as a [`RowSource`] (for embedding and benchmarks).
+pub struct FrameSource<'a> {
+    frame: &'a super::Frame,
+}
+
+impl<'a> FrameSource<'a> {
+    /// Rows of `frame`.
+    pub fn new(frame: &'a super::Frame) -> FrameSource<'a> {
+        FrameSource { frame }
+    }
+}
+
+impl RowSource for FrameSource<'_> {
+    fn data_window(&self) -> Rect {
+        self.frame.data_window
+    }
+
+    fn channel_names(&self) -> Vec<String> {
+        self.frame.channel_names()
+    }
+
+    fn sample_bytes(&self) -> Vec<usize> {
+        self.frame.channels.iter().map(|c| if c.kind == SampleKind::F16 { 2 } else { 4 }).collect()
+    }
+
+    fn read_rows(&mut self, channels: &[usize], rows: Rect) -> Result<Vec<ChannelRows>, Error> {
+        let dw = self.frame.data_window;
+        let rows = Rect { x0: dw.x0, x1: dw.x1, ..rows }.intersect(&dw);
+        let range = (rows.y0 - dw.y0) as usize * dw.width()..(rows.y1 - dw.y0) as usize * dw.width();
+        Ok(channels
+            .iter()
+            .map(|&i| ChannelRows { rect: rows, samples: self.frame.channels[i].rows_samples(range.clone()) })
+            .collect())
+    }
+}
+
+/// A [`RowSink`] that drops the rows (benchmarks) and counts them.
+#[derive(Default)]
+pub struct NullSink {
+    /// Rows received.
+    pub rows: usize,
+}
+
+impl RowSink for NullSink {
+    fn write_rows(&mut self, rows: Vec<ChannelRows>) -> Result<(), Error> {
+        self.rows += rows.first().map_or(0, |r| r.rect.height());
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), Error> {
+        Ok(())
+    }
+}
