@@ -14,7 +14,7 @@ use smallvec::SmallVec;
 
 use crate::error::Error;
 use crate::geom::Rect;
-use crate::image::Plane;
+use crate::image::{Plane, Samples};
 
 /// How a channel's samples are stored in the file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,41 +45,38 @@ pub struct Channel {
     /// Storage type in the file.
     pub kind: SampleKind,
     /// Samples as read (carried unchanged to the output unless replaced).
-    samples: FlatSamples,
+    samples: Samples,
 }
 
 impl Channel {
+    /// A channel from samples in their storage type.
+    pub fn new(name: impl Into<String>, samples: Samples) -> Channel {
+        let kind = match &samples {
+            Samples::F16(_) => SampleKind::F16,
+            Samples::F32(_) => SampleKind::F32,
+            Samples::U32(_) => SampleKind::U32,
+        };
+        Channel { name: name.into(), kind, samples }
+    }
+
     /// A channel from `f32` samples (stored as `F32`).
     pub fn from_f32(name: impl Into<String>, samples: Vec<f32>) -> Channel {
-        Channel { name: name.into(), kind: SampleKind::F32, samples: FlatSamples::F32(samples) }
+        Channel::new(name, Samples::F32(samples))
     }
 
     /// A channel from `f32` samples stored as `F16`.
     pub fn from_f32_as_half(name: impl Into<String>, samples: &[f32]) -> Channel {
-        Channel {
-            name: name.into(),
-            kind: SampleKind::F16,
-            samples: FlatSamples::F16(samples.iter().map(|&v| f16::from_f32(v)).collect()),
-        }
+        Channel::new(name, Samples::F16(samples.iter().map(|&v| f16::from_f32(v)).collect()))
     }
 
-    /// Samples `range` (row-major indices) in their storage type.
-    pub fn rows_samples(&self, range: std::ops::Range<usize>) -> crate::image::Samples {
-        use crate::image::Samples;
-        match &self.samples {
-            FlatSamples::F16(v) => Samples::F16(v[range].to_vec()),
-            FlatSamples::F32(v) => Samples::F32(v[range].to_vec()),
-            FlatSamples::U32(v) => Samples::U32(v[range].to_vec()),
-        }
+    /// The samples in their storage type.
+    pub fn samples(&self) -> &Samples {
+        &self.samples
     }
 
     /// The samples converted to `f32`.
     pub fn to_f32(&self) -> Vec<f32> {
-        match &self.samples {
-            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
-            FlatSamples::F32(v) => v.clone(),
-            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
-        }
+        self.samples.to_f32()
     }
 }
 
@@ -141,7 +138,7 @@ impl Frame {
     }
 }
 
-fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
+pub(crate) fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Exr { path: path.to_path_buf(), message: e.to_string() }
 }
 
@@ -221,18 +218,18 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
     let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, layer.size.0, layer.size.1);
     let mut channels = Vec::with_capacity(layer.channel_data.list.len());
     for ch in layer.channel_data.list {
-        let kind = match &ch.sample_data {
-            FlatSamples::F16(_) => SampleKind::F16,
-            FlatSamples::F32(_) => SampleKind::F32,
-            FlatSamples::U32(_) => SampleKind::U32,
-        };
         if ch.sample_data.len() != data_window.area() {
             return Err(exr_err(
                 path,
                 format!("channel {} has {} samples, expected {}", ch.name, ch.sample_data.len(), data_window.area()),
             ));
         }
-        channels.push(Channel { name: ch.name.to_string(), kind, samples: ch.sample_data });
+        let samples = match ch.sample_data {
+            FlatSamples::F16(v) => Samples::F16(v),
+            FlatSamples::F32(v) => Samples::F32(v),
+            FlatSamples::U32(v) => Samples::U32(v),
+        };
+        channels.push(Channel::new(ch.name.to_string(), samples));
     }
     Ok(Frame {
         data_window,
@@ -326,8 +323,18 @@ pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::resu
         },
         line_order: if opts.decreasing { LineOrder::Decreasing } else { LineOrder::Increasing },
     };
-    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
-        frame.channels.iter().map(|c| AnyChannel::new(c.name.as_str(), c.samples.clone())).collect();
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = frame
+        .channels
+        .iter()
+        .map(|c| {
+            let flat = match &c.samples {
+                Samples::F16(v) => FlatSamples::F16(v.clone()),
+                Samples::F32(v) => FlatSamples::F32(v.clone()),
+                Samples::U32(v) => FlatSamples::U32(v.clone()),
+            };
+            AnyChannel::new(c.name.as_str(), flat)
+        })
+        .collect();
     let layer = Layer::new(size, layer_attrs, encoding, AnyChannels::sort(list));
     let mut image = Image::from_layer(layer);
     if let Some(attrs) = &frame.image_attributes {

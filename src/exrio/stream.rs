@@ -22,15 +22,11 @@ use memmap2::Mmap;
 use rayon::prelude::*;
 use smallvec::SmallVec;
 
-use super::{AtomicTarget, OutputCompression, SampleKind};
+use super::{AtomicTarget, OutputCompression, SampleKind, exr_err};
 use crate::engine::{RowSink, RowSource};
 use crate::error::Error;
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Samples};
-
-fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::Exr { path: path.to_path_buf(), message: e.to_string() }
-}
 
 fn kind_of(t: SampleType) -> SampleKind {
     match t {
@@ -523,7 +519,12 @@ impl RowSource for FrameSource<'_> {
         let range = (rows.y0 - dw.y0) as usize * dw.width()..(rows.y1 - dw.y0) as usize * dw.width();
         Ok(channels
             .iter()
-            .map(|&i| ChannelRows { rect: rows, samples: self.frame.channels[i].rows_samples(range.clone()) })
+            .map(|&i| {
+                let all = self.frame.channels[i].samples();
+                let mut samples = all.empty_like(range.len());
+                samples.extend_from(all, range.clone());
+                ChannelRows { rect: rows, samples }
+            })
             .collect())
     }
 }
