@@ -155,6 +155,7 @@ fn init_logging(verbose: u8, quiet: bool) {
 /// Run the command line; never panics on bad input.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    nldenoise::engine::budget::bound_allocator();
     init_logging(cli.verbose, cli.quiet);
     let result = match cli.command {
         Command::Denoise(a) => denoise::run(a),

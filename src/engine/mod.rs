@@ -359,26 +359,24 @@ fn filter_band(
     let tiles = band.tiles(plan.tile_width, plan.band_rows);
     *tiles_done += tiles.len();
     *filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
-    let results: Vec<(Rect, filter::Denoised)> = pool.install(|| {
-        tiles
-            .par_iter()
-            .map(|t| {
-                let window = inputs.crop(t.expand(halo).intersect(&frame));
-                filter::denoise_region(&window, frame, *t, params).map(|d| (*t, d))
-            })
-            .collect::<Result<_, _>>()
+    // Each finished tile is pasted into the band at once, so only the tiles
+    // being filtered hold results.
+    let out_planes = std::sync::Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect::<Vec<_>>());
+    pool.install(|| {
+        tiles.par_iter().try_for_each(|t| -> Result<(), Error> {
+            let window = inputs.crop(t.expand(halo).intersect(&frame));
+            let d = filter::denoise_region(&window, frame, *t, params)?;
+            drop(window);
+            let mut planes = out_planes.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
+            for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
+                dst.paste(src);
+            }
+            Ok(())
+        })
     })?;
     drop(inputs);
-    // Assemble the denoised channels over the band, in roles.outputs() order.
-    let mut out_planes: Vec<Plane> = cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect();
-    for (_, d) in &results {
-        let planes = d.colour.iter().chain(d.layers.iter().flatten());
-        for (dst, src) in out_planes.iter_mut().zip(planes) {
-            dst.paste(src);
-        }
-    }
-    let n_tiles = results.len();
-    drop(results);
+    let n_tiles = tiles.len();
+    let out_planes = out_planes.into_inner().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
     for (&i, p) in cp.output_idx.iter().zip(out_planes) {
         let samples = if half {
             Samples::F16(p.data().iter().map(|&v| half::f16::from_f32(v)).collect())
