@@ -51,6 +51,7 @@ pub fn exp_neg_clamped(d: f32) -> f32 {
 /// count. `clip` must be defined by the frame (never by a tile) and `src` must
 /// cover `(dst_rect ⊕ radius) ∩ clip`; `dst_rect` must lie inside `clip`.
 /// `scratch` is reused between calls to avoid allocation.
+#[inline(always)]
 pub fn box_mean(
     src: &[f32],
     src_rect: Rect,
@@ -130,7 +131,7 @@ pub fn box_mean(
 
 /// Accumulate one channel's non-uniform-variance distance (SPEC §2) for a row:
 /// `acc[i] += ((up - uq)^2 - alpha (vp + min(vp, vq))) / (eps + k2 (vp + vq))`.
-#[inline]
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn accumulate_colour_distance(
     acc: &mut [f32],
@@ -157,7 +158,7 @@ pub fn accumulate_colour_distance(
 /// per-pixel reciprocal denominator precomputed:
 /// `acc[i] += ((fp - fq)^2 - (vp + min(vp, vq))) * inv_den[i]`
 /// (`vp = vq = 0` when the feature has no variance).
-#[inline]
+#[inline(always)]
 pub fn accumulate_feature_distance(
     acc: &mut [f32],
     fp: &[f32],

@@ -11,6 +11,7 @@ pub mod features;
 pub mod kernels;
 pub mod nlmeans;
 pub mod reference;
+pub mod simd;
 pub mod variance;
 
 pub use features::Feature;

@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, box_mean, exp_neg_clamped};
+use super::simd::{self, Tier};
 use crate::geom::Rect;
 use crate::image::Plane;
 
@@ -81,7 +82,53 @@ pub fn nlmeans(
     outputs
 }
 
+/// Filter one block with the kernel compiled for the current [`simd::Tier`].
 fn filter_block(
+    jobs: &[Job<'_>],
+    features: &[GuideFeature],
+    frame: Rect,
+    block: Rect,
+    s: &NlmSettings,
+) -> Vec<Vec<Plane>> {
+    match simd::current() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `simd::current` returns AVX-512 only when the CPU has avx512f.
+        Tier::Avx512 => unsafe { filter_block_avx512(jobs, features, frame, block, s) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `simd::current` returns AVX2 only when the CPU has avx2.
+        Tier::Avx2 => unsafe { filter_block_avx2(jobs, features, frame, block, s) },
+        _ => filter_block_body(jobs, features, frame, block, s),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn filter_block_avx2(
+    jobs: &[Job<'_>],
+    features: &[GuideFeature],
+    frame: Rect,
+    block: Rect,
+    s: &NlmSettings,
+) -> Vec<Vec<Plane>> {
+    filter_block_body(jobs, features, frame, block, s)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn filter_block_avx512(
+    jobs: &[Job<'_>],
+    features: &[GuideFeature],
+    frame: Rect,
+    block: Rect,
+    s: &NlmSettings,
+) -> Vec<Vec<Plane>> {
+    filter_block_body(jobs, features, frame, block, s)
+}
+
+/// The block kernel; inlined into each tier's wrapper so that it (and every
+/// kernel it inlines) is compiled for that tier's instruction set.
+#[inline(always)]
+fn filter_block_body(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
     frame: Rect,
@@ -196,6 +243,7 @@ fn filter_block(
 }
 
 /// `w_f = exp(-max(0, max_j Phi_j^2))` on `rect` for offset `(dx, dy)`.
+#[inline(always)]
 fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32]) {
     let w = rect.width();
     let mut phi = vec![0.0f32; w];

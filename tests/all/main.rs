@@ -6,5 +6,6 @@ mod exr_io;
 mod filter_math;
 mod memory;
 mod reference;
+mod simd;
 mod streaming;
 mod tiling;

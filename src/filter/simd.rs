@@ -1,0 +1,79 @@
+//! Instruction-set tiers for the NL-means block kernel, chosen once at run
+//! time.
+//!
+//! Every tier compiles the *same* Rust code (`nlmeans::filter_block_body`)
+//! with a different set of target features, so every pixel gets the same
+//! IEEE operations in the same order whichever tier or lane computes it: the
+//! wider tiers only put more pixels in a register. `fma` is never enabled and
+//! Rust never contracts `a * b + c` on its own, so no tier fuses. Results are
+//! therefore bit-identical across tiers (tested with each tier forced).
+//!
+//! The tier is the best the CPU supports, unless `NLDENOISE_SIMD=portable`,
+//! `avx2` or `avx512` says otherwise (a tier the CPU lacks falls back to the
+//! best available one), or [`force`] overrides it.
+
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU8, Ordering};
+
+/// A code path of the block kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tier {
+    /// The baseline target (SSE2 on x86-64).
+    Portable,
+    /// AVX2 (8 lanes).
+    Avx2,
+    /// AVX-512F (16 lanes).
+    Avx512,
+}
+
+impl Tier {
+    /// All tiers, slowest first.
+    pub const ALL: [Tier; 3] = [Tier::Portable, Tier::Avx2, Tier::Avx512];
+
+    /// Whether this CPU can run the tier.
+    pub fn available(self) -> bool {
+        match self {
+            Tier::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Tier::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(target_arch = "x86_64")]
+            Tier::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    fn from_name(s: &str) -> Option<Tier> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "portable" | "scalar" => Some(Tier::Portable),
+            "avx2" => Some(Tier::Avx2),
+            "avx512" | "avx-512" => Some(Tier::Avx512),
+            _ => None,
+        }
+    }
+}
+
+fn best_available(at_most: Tier) -> Tier {
+    Tier::ALL.into_iter().rev().find(|t| t.available() && *t as u8 <= at_most as u8).unwrap_or(Tier::Portable)
+}
+
+static FORCED: AtomicU8 = AtomicU8::new(u8::MAX);
+
+/// Force a tier for the whole process (`None`: back to automatic). A tier the
+/// CPU lacks falls back to the best available one below it.
+pub fn force(tier: Option<Tier>) {
+    FORCED.store(tier.map_or(u8::MAX, |t| t as u8), Ordering::SeqCst);
+}
+
+/// The tier the kernel runs with now.
+pub fn current() -> Tier {
+    static AUTO: OnceLock<Tier> = OnceLock::new();
+    let forced = FORCED.load(Ordering::SeqCst);
+    if let Some(t) = Tier::ALL.into_iter().find(|t| *t as u8 == forced) {
+        return best_available(t);
+    }
+    *AUTO.get_or_init(|| {
+        let wanted = std::env::var("NLDENOISE_SIMD").ok().and_then(|s| Tier::from_name(&s)).unwrap_or(Tier::Avx512);
+        best_available(wanted)
+    })
+}
