@@ -1,9 +1,10 @@
 //! Filter throughput in pixel-offsets per second (one search offset applied to
 //! one pixel): colour-only and joint (features + layers), r = 10, f = 3, on a
-//! synthetic 320x180 frame. Run with `cargo bench --bench filter`.
+//! synthetic 320x180 frame, on one thread, for every instruction-set tier this
+//! CPU has (`filter::simd`). Run with `cargo bench --bench filter`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use nldenoise::filter::{self, Buffer, Feature, FrameInputs, Params, VarianceSource};
+use nldenoise::filter::{self, Buffer, Feature, FrameInputs, Params, VarianceSource, simd};
 use nldenoise::geom::Rect;
 use nldenoise::image::Plane;
 
@@ -39,13 +40,20 @@ fn bench(c: &mut Criterion) {
         ],
         layers: vec![buffer(frame, "direct", 30), buffer(frame, "indirect", 40)],
     };
-    let mut g = c.benchmark_group("nlmeans_320x180_r10_f3");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let mut g = c.benchmark_group("nlmeans_320x180_r10_f3_1thread");
     g.sample_size(10);
     g.throughput(Throughput::Elements(frame.area() as u64 * offsets));
-    g.bench_function("colour_only", |b| b.iter(|| filter::denoise_region(&colour, frame, frame, &params).unwrap()));
-    g.bench_function("joint_features_and_two_layers", |b| {
-        b.iter(|| filter::denoise_region(&joint, frame, frame, &params).unwrap())
-    });
+    for tier in simd::Tier::ALL.into_iter().filter(|t| t.available()) {
+        simd::force(Some(tier));
+        g.bench_function(format!("colour_only_{tier:?}"), |b| {
+            b.iter(|| pool.install(|| filter::denoise_region(&colour, frame, frame, &params).unwrap()))
+        });
+        g.bench_function(format!("joint_features_and_two_layers_{tier:?}"), |b| {
+            b.iter(|| pool.install(|| filter::denoise_region(&joint, frame, frame, &params).unwrap()))
+        });
+    }
+    simd::force(None);
     g.finish();
 }
 

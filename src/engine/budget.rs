@@ -12,7 +12,10 @@
 //! * tile working sets: `threads × 4 × (tile + 2h) × window × filter_planes × 4`
 //!   (cropped inputs plus the filter's intermediates);
 //! * band outputs (`f32` denoised channels plus the rest), `depth + 2` of them
-//!   in flight, and the writer's pending rows (two output blocks, 4 bytes per sample);
+//!   in flight;
+//! * the writer: rows waiting for their block, plus one band's raw block bytes
+//!   and their compressed copies;
+//! * the reader's blocks being decompressed and decoded (one per thread);
 //! * a fixed allowance for the program, thread stacks and allocator slack.
 
 use crate::error::Error;
@@ -76,8 +79,15 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     let tile = tile_width.min(b.width) as u64;
     let tiles = b.threads as u64 * 4 * (tile + 2 * h).min(w) * window * b.filter_planes as u64 * 4;
     let band_out = w * band * (b.output_channels as u64 * 4 + b.bytes_all as u64);
-    let outputs = (depth as u64 + 2) * band_out + w * 2 * b.out_block_rows as u64 * b.channels as u64 * 4;
-    BASE_BYTES + cache + inputs + planes + tiles + outputs
+    let outputs = (depth as u64 + 2) * band_out;
+    // The writer: rows waiting for their block, one band's raw block bytes and
+    // their compressed copies.
+    let writer = w * (band + b.out_block_rows as u64) * (b.output_channels as u64 * 4 + b.bytes_all as u64)
+        + 2 * w * band.max(b.out_block_rows as u64) * (b.output_channels as u64 * 4 + b.bytes_all as u64);
+    // The reader: blocks being decompressed and decoded, one per thread, twice
+    // (raw bytes and samples).
+    let decoding = b.threads as u64 * 2 * w * b.block_rows as u64 * b.bytes_all as u64;
+    BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding
 }
 
 /// The largest tiles (at most `tile_size`) that fit in `limit_bytes`.

@@ -162,12 +162,16 @@ impl ExrSource {
             .collect::<Result<_, _>>()
             .map_err(|e| exr_err(&self.path, format!("could not read a chunk: {e}")))?;
         self.chunks_decoded += chunks.len();
-        let blocks: Vec<UncompressedBlock> = chunks
+        // Decompress and decode each chunk in one step, so that its raw bytes
+        // are freed as soon as its samples exist.
+        let decoded: Vec<DecodedBlock> = chunks
             .into_par_iter()
-            .map(|c| UncompressedBlock::decompress_chunk(c, &meta, false))
-            .collect::<Result<_, _>>()
-            .map_err(|e| exr_err(&self.path, format!("could not decompress a chunk: {e}")))?;
-        let decoded: Vec<DecodedBlock> = blocks.into_par_iter().map(|b| self.decode(b)).collect::<Result<_, _>>()?;
+            .map(|c| {
+                let block = UncompressedBlock::decompress_chunk(c, &meta, false)
+                    .map_err(|e| exr_err(&self.path, format!("could not decompress a chunk: {e}")))?;
+                self.decode(block)
+            })
+            .collect::<Result<_, _>>()?;
         for b in decoded {
             self.cache.insert((b.rect.y0, b.rect.x0), b);
         }
@@ -330,44 +334,44 @@ impl ExrSink {
     }
 }
 
-/// Collects rows in increasing y and cuts them into scanline blocks.
+/// Collects rows in increasing y and cuts them into scanline blocks, copying
+/// each sample once (into the block's bytes).
 struct ChunkAssembler {
     dw: Rect,
     lines_per_block: usize,
     next_y: i64,
     next_chunk: usize,
-    /// Rows received but not yet written, per channel (sorted order), all over the same rows.
-    pending: Vec<ChannelRows>,
+    /// Received bands not yet completely written, in increasing y; each holds
+    /// every channel (sorted order) over the same rows.
+    pieces: std::collections::VecDeque<Vec<ChannelRows>>,
 }
 
 impl ChunkAssembler {
+    fn received_to(&self) -> i64 {
+        self.pieces.back().map_or(self.next_y, |p| p[0].rect.y1)
+    }
+
     fn push(&mut self, rows: Vec<ChannelRows>) -> Result<(), String> {
-        let expected_y0 = self.pending.first().map_or(self.next_y, |p| p.rect.y1);
-        if rows.iter().any(|r| {
-            r.rect.y0 != expected_y0
-                || r.rect.x0 != self.dw.x0
-                || r.rect.x1 != self.dw.x1
-                || r.samples.len() != r.rect.area()
-        }) {
+        let expected_y0 = self.received_to();
+        if rows.is_empty()
+            || rows.iter().any(|r| {
+                r.rect.y0 != expected_y0
+                    || r.rect.y1 != rows[0].rect.y1
+                    || r.rect.x0 != self.dw.x0
+                    || r.rect.x1 != self.dw.x1
+                    || r.samples.len() != r.rect.area()
+            })
+        {
             return Err(format!("rows must arrive full-width in increasing y, starting at row {expected_y0}"));
         }
-        if self.pending.is_empty() {
-            self.pending = rows;
-        } else {
-            for (p, r) in self.pending.iter_mut().zip(rows) {
-                let mut s = p.samples.empty_like(p.samples.len() + r.samples.len());
-                s.extend_from(&p.samples, 0..p.samples.len());
-                s.extend_from(&r.samples, 0..r.samples.len());
-                *p = ChannelRows { rect: Rect { y1: r.rect.y1, ..p.rect }, samples: s };
-            }
-        }
+        self.pieces.push_back(rows);
         Ok(())
     }
 
     /// Every block whose rows are all here, with its chunk index.
     fn ready_blocks(&mut self) -> Vec<(usize, UncompressedBlock)> {
         let mut blocks = Vec::new();
-        let have = self.pending.first().map_or(self.next_y, |p| p.rect.y1);
+        let have = self.received_to();
         while self.next_y < self.dw.y1 {
             let end = (self.next_y + self.lines_per_block as i64).min(self.dw.y1);
             if have < end {
@@ -375,7 +379,8 @@ impl ChunkAssembler {
             }
             let mut data = Vec::new();
             for y in self.next_y..end {
-                for rows in &self.pending {
+                let piece = self.pieces.iter().find(|p| p[0].rect.y0 <= y && y < p[0].rect.y1).expect("rows received");
+                for rows in piece {
                     let w = rows.rect.width();
                     let off = (y - rows.rect.y0) as usize * w;
                     match &rows.samples {
@@ -400,11 +405,8 @@ impl ChunkAssembler {
             blocks.push((self.next_chunk, UncompressedBlock { index, data }));
             self.next_chunk += 1;
             self.next_y = end;
-        }
-        let next_y = self.next_y;
-        for rows in self.pending.iter_mut() {
-            if rows.rect.y0 < next_y {
-                *rows = rows.rows(next_y, rows.rect.y1);
+            while self.pieces.front().is_some_and(|p| p[0].rect.y1 <= self.next_y) {
+                self.pieces.pop_front();
             }
         }
         blocks
@@ -417,7 +419,7 @@ impl ChunkAssembler {
 
 fn write_thread(file: File, header: Header, dw: Rect, rx: mpsc::Receiver<SinkMsg>, path: &Path) -> Result<(), Error> {
     let lines_per_block = header.compression.scan_lines_per_block();
-    let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pending: Vec::new() };
+    let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pieces: Default::default() };
     let mut bad_rows: Option<String> = None;
     let mut writer = BufWriter::new(file);
     let result = exr::block::write(&mut writer, smallvec::smallvec![header], true, |meta, chunk_writer| {
