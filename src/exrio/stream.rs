@@ -314,7 +314,7 @@ impl ExrSink {
 
         let target = AtomicTarget::new(path);
         let file = File::create(&target.tmp).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
-        let (tx, rx) = mpsc::sync_channel::<SinkMsg>(1);
+        let (tx, rx) = mpsc::sync_channel::<SinkMsg>(0);
         let thread_path = path.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("exr-writer".into())
