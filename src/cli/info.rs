@@ -9,7 +9,7 @@ use clap::Args;
 use nldenoise::engine::{self, RowSource, StreamOptions, budget};
 use nldenoise::exrio::stream::ExrSource;
 use nldenoise::exrio::{self, roles};
-use nldenoise::filter::{InputShape, Pipeline};
+use nldenoise::filter::Pipeline;
 
 use super::{ChannelArgs, FilterArgs};
 
@@ -87,10 +87,7 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     }
     if a.plan {
         let params = a.filter.params()?;
-        let shape = InputShape {
-            feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
-            layers: roles.layers.len(),
-        };
+        let shape = roles.shape();
         writeln!(o, "plan:")?;
         for line in Pipeline::new(params, shape).describe() {
             writeln!(o, "  {line}")?;

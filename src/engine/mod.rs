@@ -22,7 +22,7 @@ use tracing::{debug, info, info_span};
 
 use crate::error::Error;
 use crate::exrio::roles::ChannelRoles;
-use crate::filter::{self, InputShape, Params, Pipeline};
+use crate::filter::{self, Params, Pipeline};
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Plane, Samples};
 use budget::{BandPlan, BudgetInput};
@@ -152,10 +152,7 @@ pub fn plan_stream(
     let names = source.channel_names();
     let cp = channel_plan(&names, roles)?;
     let sample_bytes = source.sample_bytes();
-    let shape = InputShape {
-        feature_has_variance: roles.features.iter().map(|f| f.variance.is_some()).collect(),
-        layers: roles.layers.len(),
-    };
+    let shape = roles.shape();
     let halo = Pipeline::new(*params, shape).halo();
     let threads =
         if opts.threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { opts.threads };

@@ -482,6 +482,14 @@ impl ChannelRoles {
         v
     }
 
+    /// The kinds of input these roles give the filter (for the halo).
+    pub fn shape(&self) -> crate::filter::InputShape {
+        crate::filter::InputShape {
+            feature_has_variance: self.features.iter().map(|f| f.variance.is_some()).collect(),
+            layers: self.layers.len(),
+        }
+    }
+
     /// Every channel the filter reads.
     pub fn inputs_channels(&self) -> Vec<String> {
         let mut v = self.colour.clone();
