@@ -101,29 +101,25 @@ fn filter_block(
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn filter_block_avx2(
-    jobs: &[Job<'_>],
-    features: &[GuideFeature],
-    frame: Rect,
-    block: Rect,
-    s: &NlmSettings,
-) -> Vec<Vec<Plane>> {
-    filter_block_body(jobs, features, frame, block, s)
+/// One wrapper per tier: the same body compiled with the tier's target feature.
+macro_rules! tier_wrapper {
+    ($name:ident, $feature:literal) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $feature)]
+        fn $name(
+            jobs: &[Job<'_>],
+            features: &[GuideFeature],
+            frame: Rect,
+            block: Rect,
+            s: &NlmSettings,
+        ) -> Vec<Vec<Plane>> {
+            filter_block_body(jobs, features, frame, block, s)
+        }
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn filter_block_avx512(
-    jobs: &[Job<'_>],
-    features: &[GuideFeature],
-    frame: Rect,
-    block: Rect,
-    s: &NlmSettings,
-) -> Vec<Vec<Plane>> {
-    filter_block_body(jobs, features, frame, block, s)
-}
+tier_wrapper!(filter_block_avx2, "avx2");
+tier_wrapper!(filter_block_avx512, "avx512f");
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
