@@ -1,0 +1,43 @@
+#!/usr/bin/env python3
+"""Time nldenoise against OpenCV's fastNlMeansDenoisingColored on the same frame.
+
+Called by benches/opencv_compare.sh (which makes the venv). OpenCV gets the
+frame's R,G,B tone-mapped to 8 bits (x/(1+x), gamma 1/2.2), searchWindowSize=21,
+templateWindowSize=7 (the same r=10, f=3 as ours), the given thread count; we
+run `nldenoise denoise` on the EXR with the same thread count. The two are
+run alternately, ROUNDS times, and the medians and their ratio are printed.
+"""
+import statistics
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import OpenEXR
+
+exr, binary, threads, rounds = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+extra = sys.argv[5:]
+
+with OpenEXR.File(exr, separate_channels=True) as f:
+    ch = f.channels()
+    rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
+img8 = np.clip(255.0 * (np.maximum(rgb, 0) / (1.0 + np.maximum(rgb, 0))) ** (1 / 2.2) + 0.5, 0, 255).astype(np.uint8)
+bgr8 = np.ascontiguousarray(img8[..., ::-1])
+cv2.setNumThreads(threads)
+
+ours, theirs = [], []
+for _ in range(rounds):
+    t = time.perf_counter()
+    cv2.fastNlMeansDenoisingColored(bgr8, None, h=10, hColor=10, templateWindowSize=7, searchWindowSize=21)
+    theirs.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    subprocess.run([binary, "-q", "denoise", exr, "-o", "/tmp/opencv_compare_out.exr", "--threads", str(threads), *extra], check=True)
+    ours.append(time.perf_counter() - t)
+
+h, w = rgb.shape[:2]
+mo, mt = statistics.median(ours), statistics.median(theirs)
+print(f"frame {w}x{h}, {threads} threads, {rounds} alternating rounds, OpenCV {cv2.__version__}")
+print(f"OpenCV fastNlMeansDenoisingColored (8-bit, r=10, f=3): median {mt:.2f} s  {['%.2f' % x for x in theirs]}")
+print(f"nldenoise denoise {' '.join(extra)} (f32, file in and out): median {mo:.2f} s  {['%.2f' % x for x in ours]}")
+print(f"ratio nldenoise / OpenCV: {mo / mt:.2f}")

@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# nldenoise vs OpenCV fastNlMeansDenoisingColored on a 1920x1080 frame, measured
+# alternately in one run (docs/performance.md).
+#   bash benches/opencv_compare.sh [THREADS] [ROUNDS] [extra nldenoise options...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+THREADS=${1:-2}; ROUNDS=${2:-3}; shift $(( $# > 2 ? 2 : $# )) || true
+venv=target/opencv-venv
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+"$venv/bin/pip" install -q opencv-python-headless numpy "openexr>=3.3"
+cargo build --release --bin nldenoise --example make_big_frame >/dev/null 2>&1
+frame=target/opencv-compare-1080p.exr
+[ -f "$frame" ] || ./target/release/examples/make_big_frame 1920 1080 "$frame" --features
+echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
+"$venv/bin/python" benches/opencv_compare.py "$frame" ./target/release/nldenoise "$THREADS" "$ROUNDS" "$@"
