@@ -148,9 +148,19 @@ pub fn plan_stream(
     params: &Params,
     opts: &StreamOptions,
 ) -> Result<(usize, BandPlan, usize), Error> {
+    let cp = channel_plan(&source.channel_names(), roles)?;
+    plan_with(source, roles, params, opts, &cp)
+}
+
+fn plan_with(
+    source: &dyn RowSource,
+    roles: &ChannelRoles,
+    params: &Params,
+    opts: &StreamOptions,
+    cp: &ChannelPlan,
+) -> Result<(usize, BandPlan, usize), Error> {
     let frame = source.data_window();
-    let names = source.channel_names();
-    let cp = channel_plan(&names, roles)?;
+    let channels = source.channel_names().len();
     let sample_bytes = source.sample_bytes();
     let shape = roles.shape();
     let halo = Pipeline::new(*params, shape).halo();
@@ -161,7 +171,7 @@ pub fn plan_stream(
             width: frame.width(),
             height: frame.height(),
             halo,
-            channels: names.len(),
+            channels,
             bytes_all: sample_bytes.iter().sum(),
             filter_channels: cp.filter_idx.len(),
             bytes_filter: cp.filter_idx.iter().map(|&i| sample_bytes[i]).sum(),
@@ -189,7 +199,7 @@ pub fn denoise_stream(
     let frame = source.data_window();
     let names = source.channel_names();
     let cp = channel_plan(&names, roles)?;
-    let (halo, plan, threads) = plan_stream(source, roles, params, opts)?;
+    let (halo, plan, threads) = plan_with(source, roles, params, opts, &cp)?;
     info!(
         "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, estimated peak {:.1} MiB of {:.1} MiB allowed",
         plan.band_rows,

@@ -4,7 +4,6 @@
 pub mod roles;
 pub mod stream;
 
-use std::collections::HashMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
@@ -358,9 +357,4 @@ pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::resu
     let mut target = target;
     target.done = true;
     Ok(())
-}
-
-/// Summary of the channels for reports: name → kind.
-pub fn channel_kinds(frame: &Frame) -> HashMap<String, SampleKind> {
-    frame.channels.iter().map(|c| (c.name.clone(), c.kind)).collect()
 }

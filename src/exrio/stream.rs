@@ -245,10 +245,6 @@ pub struct SinkChannel {
     pub kind: SampleKind,
 }
 
-enum SinkMsg {
-    Rows(Vec<ChannelRows>),
-}
-
 /// Writes full-width rows, in increasing y, to a scanline EXR file.
 ///
 /// The file is written to a temporary file beside `path` by a writer thread
@@ -258,7 +254,7 @@ enum SinkMsg {
 pub struct ExrSink {
     path: PathBuf,
     target: Option<AtomicTarget>,
-    tx: Option<mpsc::SyncSender<SinkMsg>>,
+    tx: Option<mpsc::SyncSender<Vec<ChannelRows>>>,
     thread: Option<JoinHandle<Result<(), Error>>>,
     order: Vec<usize>,
 }
@@ -314,7 +310,7 @@ impl ExrSink {
 
         let target = AtomicTarget::new(path);
         let file = File::create(&target.tmp).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
-        let (tx, rx) = mpsc::sync_channel::<SinkMsg>(0);
+        let (tx, rx) = mpsc::sync_channel::<Vec<ChannelRows>>(0);
         let thread_path = path.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("exr-writer".into())
@@ -417,13 +413,19 @@ impl ChunkAssembler {
     }
 }
 
-fn write_thread(file: File, header: Header, dw: Rect, rx: mpsc::Receiver<SinkMsg>, path: &Path) -> Result<(), Error> {
+fn write_thread(
+    file: File,
+    header: Header,
+    dw: Rect,
+    rx: mpsc::Receiver<Vec<ChannelRows>>,
+    path: &Path,
+) -> Result<(), Error> {
     let lines_per_block = header.compression.scan_lines_per_block();
     let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pieces: Default::default() };
     let mut bad_rows: Option<String> = None;
     let mut writer = BufWriter::new(file);
     let result = exr::block::write(&mut writer, smallvec::smallvec![header], true, |meta, chunk_writer| {
-        while let Ok(SinkMsg::Rows(rows)) = rx.recv() {
+        while let Ok(rows) = rx.recv() {
             if let Err(e) = asm.push(rows) {
                 bad_rows = Some(e);
                 break;
@@ -466,7 +468,7 @@ impl RowSink for ExrSink {
         let mut slots: Vec<Option<ChannelRows>> = rows.into_iter().map(Some).collect();
         let sorted: Vec<ChannelRows> =
             self.order.iter().map(|&i| slots[i].take().expect("each channel once")).collect();
-        let sent = self.tx.as_ref().map(|tx| tx.send(SinkMsg::Rows(sorted)).is_ok()).unwrap_or(false);
+        let sent = self.tx.as_ref().map(|tx| tx.send(sorted).is_ok()).unwrap_or(false);
         if !sent {
             // The writer stopped: report its error.
             self.join()?;

@@ -145,6 +145,7 @@ fn filter_block_body(
     let mut wfeat = vec![0.0f32; cap_w];
     let mut wsum = vec![0.0f32; area];
     let mut scratch = Vec::with_capacity(cap_d);
+    let mut phi = Vec::with_capacity(block.expand(f).width());
 
     for dy in -r..=r {
         for dx in -r..=r {
@@ -157,7 +158,7 @@ fn filter_block_body(
             let d_rect = block.expand(2 * f).intersect(&valid);
 
             if !features.is_empty() {
-                feature_weights(features, w_rect, dx, dy, &mut wfeat[..w_rect.area()]);
+                feature_weights(features, w_rect, dx, dy, &mut wfeat[..w_rect.area()], &mut phi);
             }
 
             for (j, job) in jobs.iter().enumerate() {
@@ -240,9 +241,10 @@ fn filter_block_body(
 
 /// `w_f = exp(-max(0, max_j Phi_j^2))` on `rect` for offset `(dx, dy)`.
 #[inline(always)]
-fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32]) {
+fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32], phi: &mut Vec<f32>) {
     let w = rect.width();
-    let mut phi = vec![0.0f32; w];
+    phi.clear();
+    phi.resize(w, 0.0);
     for (ri, y) in (rect.y0..rect.y1).enumerate() {
         let row = &mut out[ri * w..(ri + 1) * w];
         row.fill(0.0);
@@ -255,10 +257,10 @@ fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out:
                     .variance
                     .as_ref()
                     .map(|v| (v[c].row(y, rect.x0, rect.x1), v[c].row(y + dy, rect.x0 + dx, rect.x1 + dx)));
-                accumulate_feature_distance(&mut phi, fp, fq, var, feat.inv_den[c].row(y, rect.x0, rect.x1));
+                accumulate_feature_distance(phi, fp, fq, var, feat.inv_den[c].row(y, rect.x0, rect.x1));
             }
             let inv_c = 1.0 / feat.values.len() as f32;
-            for (o, p) in row.iter_mut().zip(&phi) {
+            for (o, p) in row.iter_mut().zip(phi.iter()) {
                 let v = *p * inv_c;
                 // NaN-safe max: a NaN distance must not win over a finite one.
                 if v > *o {

@@ -110,16 +110,6 @@ pub fn frame_inputs(frame: Rect, seed: u64, kinds: Kinds) -> FrameInputs {
     FrameInputs { colour, features, layers }
 }
 
-/// Every plane of `inputs` cropped to `rect ∩ plane`.
-pub fn crop_inputs(inputs: &FrameInputs, rect: Rect) -> FrameInputs {
-    inputs.crop(rect)
-}
-
-/// Apply `f` to every plane.
-pub fn map_planes(inputs: &FrameInputs, f: &dyn Fn(&Plane) -> Plane) -> FrameInputs {
-    inputs.map_planes(f)
-}
-
 /// Parameters with every prefilter on and small radii (fast tests).
 pub fn small_params(r: usize, f: usize) -> Params {
     let mut p = Params {

@@ -130,6 +130,6 @@ fn invalid_parameters_are_errors() {
         assert!(e.to_string().contains("invalid parameter"), "{e}");
     }
     // Inputs that do not cover the halo are refused, not read out of bounds.
-    let small = crate::common::crop_inputs(&inputs, Rect::from_origin_size(2, 2, 3, 3));
+    let small = inputs.crop(Rect::from_origin_size(2, 2, 3, 3));
     assert!(filter::denoise_region(&small, frame, Rect::from_origin_size(2, 2, 3, 3), &Params::default()).is_err());
 }

@@ -6,7 +6,7 @@ use nldenoise::geom::Rect;
 use nldenoise::image::Plane;
 use proptest::prelude::*;
 
-use crate::common::{ALL_KINDS, Kinds, bits, crop_inputs, frame_inputs, map_planes, small_params};
+use crate::common::{ALL_KINDS, Kinds, bits, frame_inputs, small_params};
 
 /// Filter `frame` tile by tile, each tile reading only `(tile ⊕ halo) ∩ frame`.
 fn tiled(inputs: &FrameInputs, frame: Rect, params: &Params, tw: usize, th: usize) -> filter::Denoised {
@@ -15,7 +15,7 @@ fn tiled(inputs: &FrameInputs, frame: Rect, params: &Params, tw: usize, th: usiz
     let mut layers: Vec<Vec<Plane>> =
         inputs.layers.iter().map(|l| l.values.iter().map(|_| Plane::filled(frame, f32::NAN)).collect()).collect();
     for tile in frame.tiles(tw, th) {
-        let window = crop_inputs(inputs, tile.expand(halo).intersect(&frame));
+        let window = inputs.crop(tile.expand(halo).intersect(&frame));
         let out = filter::denoise_region(&window, frame, tile, params).unwrap();
         for (dst, src) in colour.iter_mut().zip(&out.colour) {
             dst.paste(src);
@@ -81,7 +81,7 @@ fn thread_count_does_not_change_bits() {
 
 /// Replace every sample of `inputs` outside `keep` by `value`.
 fn poison_outside(inputs: &FrameInputs, keep: Rect, value: f32) -> FrameInputs {
-    map_planes(inputs, &|p: &Plane| {
+    inputs.map_planes(&|p: &Plane| {
         let mut q = p.clone();
         let r = p.rect();
         for y in r.y0..r.y1 {
