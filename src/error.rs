@@ -32,13 +32,25 @@ pub enum Error {
     },
     /// The memory limit is below what the smallest schedule needs.
     #[error(
-        "memory limit {limit} bytes is below the minimum of {needed} bytes this frame needs (smallest tiles); raise --memory-limit"
+        "memory limit {limit} bytes is below the minimum of {needed} bytes this {width}x{height} frame needs (smallest tiles); raise --memory-limit to at least {needed}"
     )]
     Budget {
         /// Bytes the smallest schedule needs.
         needed: u64,
         /// The limit given.
         limit: u64,
+        /// Frame width.
+        width: usize,
+        /// Frame height.
+        height: usize,
+    },
+    /// An error that arose while processing a file (names the file).
+    #[error("{}: {source}", path.display())]
+    InFile {
+        /// The file being processed.
+        path: PathBuf,
+        /// What went wrong.
+        source: Box<Error>,
     },
     /// A worker stopped unexpectedly (a bug); the run was abandoned cleanly.
     #[error("internal error: {0}")]
@@ -51,6 +63,19 @@ pub enum Error {
         /// The underlying error.
         source: std::io::Error,
     },
+}
+
+impl Error {
+    /// Name `path` in errors that do not already name a file (parameters,
+    /// inconsistent inputs, memory budget).
+    pub fn in_file(self, path: &std::path::Path) -> Error {
+        match self {
+            e @ (Error::InvalidInput(_) | Error::Budget { .. } | Error::Internal(_)) => {
+                Error::InFile { path: path.to_path_buf(), source: Box::new(e) }
+            }
+            other => other,
+        }
+    }
 }
 
 /// Result with the library error.

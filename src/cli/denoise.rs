@@ -32,7 +32,8 @@ pub struct DenoiseArgs {
     /// Tile size in pixels for the streaming engine; 0 filters the whole frame in memory.
     #[arg(long, default_value_t = 256)]
     pub tile_size: usize,
-    /// Memory limit for the streaming engine (e.g. 512M, 4G); default: half of the available memory.
+    /// Memory limit (e.g. 512M, 4G): the streaming engine's budget, or the largest frame read whole
+    /// with --tile-size 0; default: half of the available memory.
     #[arg(long, value_parser = budget::parse_size)]
     pub memory_limit: Option<u64>,
     /// Output compression.
@@ -71,7 +72,8 @@ fn whole_frame(a: &DenoiseArgs) -> anyhow::Result<()> {
     let params = a.filter.params()?;
     let pool = thread_pool(a.threads)?;
     let t0 = Instant::now();
-    let mut frame = exrio::read_frame(&a.input)?;
+    let limit = a.memory_limit.unwrap_or_else(budget::default_limit_bytes);
+    let mut frame = exrio::read_frame_within(&a.input, limit)?;
     let rect = frame.data_window;
     info!(
         "read {} ({}x{}, {} channels) in {:.2}s",

@@ -111,7 +111,7 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
         } else if tile_w > 1 {
             tile_w = tile_w.div_ceil(2);
         } else {
-            return Err(Error::Budget { needed: est, limit: limit_bytes });
+            return Err(Error::Budget { needed: est, limit: limit_bytes, width: b.width, height: b.height });
         }
     }
 }

@@ -154,9 +154,15 @@ fn compression_name(c: Compression) -> String {
 }
 
 /// The one header of a file we can denoise: single part, flat, full-resolution channels.
+///
+/// Also checks the header against the file's actual size before anything is
+/// allocated from it: every chunk needs an 8-byte entry in the offset table
+/// and at least a chunk header, so a header whose data window implies more
+/// chunks than the file can hold is corrupt (or the file truncated).
 pub(crate) fn check_supported(
     path: &Path,
     meta: &exr::meta::MetaData,
+    file_len: u64,
 ) -> std::result::Result<exr::meta::header::Header, Error> {
     if meta.headers.len() != 1 {
         return Err(exr_err(
@@ -165,6 +171,17 @@ pub(crate) fn check_supported(
         ));
     }
     let header = &meta.headers[0];
+    let min_bytes = (header.chunk_count as u64).saturating_mul(MIN_CHUNK_BYTES);
+    if min_bytes > file_len {
+        return Err(exr_err(
+            path,
+            format!(
+                "the header declares a {}x{} data window in {} chunks, which needs at least {min_bytes} bytes, \
+                 but the file has {file_len}: the header is corrupt or the file truncated",
+                header.layer_size.0, header.layer_size.1, header.chunk_count
+            ),
+        ));
+    }
     if header.deep {
         return Err(exr_err(path, "is a deep EXR file; only flat images are supported"));
     }
@@ -182,6 +199,48 @@ pub(crate) fn check_supported(
     Ok(header.clone())
 }
 
+/// Make attributes copied from an input file writable: a leniently read header
+/// may hold values the EXR writer refuses (custom attributes under reserved
+/// names, invalid values, a zero pixel aspect ratio, ...). Such attributes are
+/// dropped or reset to their defaults; returns one note per change.
+pub(crate) fn sanitize_attributes(
+    shared: &mut ImageAttributes,
+    own: &mut LayerAttributes,
+    data_window: IntegerBounds,
+) -> Vec<String> {
+    use exr::meta::attribute::validate;
+    let mut notes = Vec::new();
+    let reserved = |name: &Text| exr::meta::header::standard_names::ALL.iter().any(|r| name.bytes() == *r);
+    let dw = data_window;
+    let keep = |name: &Text, value: &AttributeValue, notes: &mut Vec<String>| {
+        let mut long = true;
+        let ok = !reserved(name) && validate(name, value, &mut long, false, dw, true).is_ok();
+        if !ok {
+            notes.push(format!("attribute `{name}` of the input is invalid and was not copied"));
+        }
+        ok
+    };
+    shared.other.retain(|n, v| keep(n, v, &mut notes));
+    own.other.retain(|n, v| keep(n, v, &mut notes) && !shared.other.contains_key(n));
+    if !shared.pixel_aspect.is_normal() || !(1.0e-6..=1.0e6).contains(&shared.pixel_aspect) {
+        notes.push(format!("pixel aspect ratio {} of the input is invalid; written as 1", shared.pixel_aspect));
+        shared.pixel_aspect = 1.0;
+    }
+    if !(own.screen_window_width >= 0.0) || !own.screen_window_width.is_finite() {
+        notes.push(format!("screen window width {} of the input is invalid; written as 1", own.screen_window_width));
+        own.screen_window_width = 1.0;
+    }
+    if shared.display_window.validate(None).is_err() || shared.display_window.size == Vec2(0, 0) {
+        notes.push("display window of the input is invalid; written as the data window".into());
+        shared.display_window = data_window;
+    }
+    if own.preview.as_ref().is_some_and(|p| p.validate(true).is_err()) {
+        notes.push("preview image of the input is invalid and was not copied".into());
+        own.preview = None;
+    }
+    notes
+}
+
 /// How a file is laid out, from its header.
 pub fn layout_of(header: &exr::meta::header::Header) -> Layout {
     Layout {
@@ -194,15 +253,45 @@ pub fn layout_of(header: &exr::meta::header::Header) -> Layout {
     }
 }
 
+/// Smallest possible chunk: its offset-table entry (8 bytes), a scanline
+/// chunk's y and size fields (8 bytes) and one byte of data.
+const MIN_CHUNK_BYTES: u64 = 17;
+
 /// Read a single-part, flat (non-deep) EXR frame, scanline or tiled, any line
 /// order, with f16, f32 or u32 channels. Only the largest resolution level of
-/// a mip-mapped file is read.
+/// a mip-mapped file is read. A frame whose samples would need more than half
+/// the available memory is refused before it is decoded (see
+/// [`read_frame_within`]).
 pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
+    read_frame_within(path, crate::engine::budget::default_limit_bytes())
+}
+
+/// [`read_frame`], refusing (before decoding anything) a frame whose decoded
+/// samples would exceed `limit_bytes`.
+pub fn read_frame_within(path: &Path, limit_bytes: u64) -> std::result::Result<Frame, Error> {
+    let io_err = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
+    let file_len = std::fs::metadata(path).map_err(io_err)?.len();
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
-        exr::error::Error::Io(io) => Error::Io { path: path.to_path_buf(), source: io },
+        exr::error::Error::Io(io) => io_err(io),
         other => exr_err(path, format!("not a readable EXR file: {other}")),
     })?;
-    let header = check_supported(path, &meta)?;
+    let header = check_supported(path, &meta, file_len)?;
+    let bytes = (header.layer_size.0 as u64)
+        .saturating_mul(header.layer_size.1 as u64)
+        .saturating_mul(header.channels.list.iter().map(|c| c.sample_type.bytes_per_sample() as u64).sum());
+    if bytes > limit_bytes {
+        return Err(exr_err(
+            path,
+            format!(
+                "its {}x{} frame with {} channels decodes to {bytes} bytes, more than the memory limit of \
+                 {limit_bytes} bytes for whole-frame reading; stream it instead (the default --tile-size) \
+                 or raise --memory-limit",
+                header.layer_size.0,
+                header.layer_size.1,
+                header.channels.list.len()
+            ),
+        ));
+    }
     let layout = layout_of(&header);
     let image = read()
         .no_deep_data()
@@ -334,10 +423,18 @@ pub fn write_frame(path: &Path, frame: &Frame, opts: &WriteOptions) -> std::resu
             AnyChannel::new(c.name.as_str(), flat)
         })
         .collect();
+    let mut image_attrs = frame.image_attributes.clone();
+    if let Some(shared) = image_attrs.as_mut() {
+        for note in
+            sanitize_attributes(shared, &mut layer_attrs, IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size))
+        {
+            tracing::warn!("{}: {note}", path.display());
+        }
+    }
     let layer = Layer::new(size, layer_attrs, encoding, AnyChannels::sort(list));
     let mut image = Image::from_layer(layer);
-    if let Some(attrs) = &frame.image_attributes {
-        image.attributes = attrs.clone();
+    if let Some(attrs) = image_attrs {
+        image.attributes = attrs;
     } else {
         image.attributes.display_window = IntegerBounds::new(Vec2(dw.x0 as i32, dw.y0 as i32), size);
     }

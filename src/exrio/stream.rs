@@ -65,7 +65,7 @@ impl ExrSource {
         let mmap = unsafe { Mmap::map(&file) }.map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&mmap[..]), false)
             .map_err(|e| exr_err(path, format!("not a readable EXR file: {e}")))?;
-        let header = super::check_supported(path, &meta)?;
+        let header = super::check_supported(path, &meta, mmap.len() as u64)?;
         let pos = header.own_attributes.layer_position;
         let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, header.layer_size.0, header.layer_size.1);
         let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
@@ -301,6 +301,10 @@ impl ExrSink {
         if let Some(t) = template {
             header.shared_attributes = t.shared_attributes.clone();
             header.own_attributes = t.own_attributes.clone();
+            let dw = exr::meta::attribute::IntegerBounds::new(Vec2(data_window.x0 as i32, data_window.y0 as i32), size);
+            for note in super::sanitize_attributes(&mut header.shared_attributes, &mut header.own_attributes, dw) {
+                tracing::warn!("{}: {note}", path.display());
+            }
         } else {
             header.shared_attributes.display_window =
                 exr::meta::attribute::IntegerBounds::new(Vec2(data_window.x0 as i32, data_window.y0 as i32), size);
@@ -444,13 +448,14 @@ fn write_thread(
     if let Some(e) = bad_rows {
         return Err(Error::InvalidInput(format!("{}: {e}", path.display())));
     }
-    if !asm.complete() {
-        return Err(exr_err(path, "the frame's rows were not all delivered; no file written"));
-    }
+    // An encoding or I/O error stops the rows too: report it first.
     result.map_err(|e| match e {
         exr::error::Error::Io(io) => Error::Io { path: path.to_path_buf(), source: io },
         other => exr_err(path, format!("could not encode: {other}")),
     })?;
+    if !asm.complete() {
+        return Err(exr_err(path, "the frame's rows were not all delivered; no file written"));
+    }
     let file = writer.into_inner().map_err(|e| Error::Io { path: path.to_path_buf(), source: e.into_error() })?;
     file.sync_all().map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
     Ok(())

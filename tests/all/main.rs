@@ -4,6 +4,7 @@ mod cli;
 mod common;
 mod exr_io;
 mod filter_math;
+mod malformed;
 mod memory;
 mod reference;
 mod simd;
