@@ -226,7 +226,7 @@ pub(crate) fn sanitize_attributes(
         notes.push(format!("pixel aspect ratio {} of the input is invalid; written as 1", shared.pixel_aspect));
         shared.pixel_aspect = 1.0;
     }
-    if !(own.screen_window_width >= 0.0) || !own.screen_window_width.is_finite() {
+    if !own.screen_window_width.is_finite() || own.screen_window_width < 0.0 {
         notes.push(format!("screen window width {} of the input is invalid; written as 1", own.screen_window_width));
         own.screen_window_width = 1.0;
     }
