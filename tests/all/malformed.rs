@@ -98,40 +98,30 @@ pub fn run_all(dir: &Path, bytes: &[u8]) -> Vec<(&'static str, Outcome)> {
     let _ = std::fs::remove_file(&output);
     let params = Params { search_radius: 2, patch_radius: 1, ..Params::default() };
     let opts = StreamOptions { tile_size: 16, threads: 2, memory_limit: 64 << 20, ..StreamOptions::default() };
-    let mut out = vec![
-        ("read_frame", guarded(|| exrio::read_frame(&input).map(|_| ()))),
-        (
-            "denoise_file",
-            guarded(|| {
-                api::denoise_file(&input, &output, &RoleOptions::default(), &params, false, &WriteOptions::default())
-                    .map(|_| ())
-            }),
-        ),
-    ];
-    let _ = std::fs::remove_file(&output);
-    out.push((
-        "streaming",
-        guarded(|| {
-            api::denoise_file_streaming(
-                &input,
-                &output,
-                &RoleOptions::default(),
-                &params,
-                &opts,
-                OutputCompression::Zip,
-            )
-            .map(|_| ())
+    let roles = RoleOptions::default();
+    let mut out = vec![("read_frame", guarded(|| exrio::read_frame(&input).map(|_| ())))];
+    let runs: [(&'static str, &dyn Fn() -> Result<(), nldenoise::Error>); 2] = [
+        ("denoise_file", &|| {
+            api::denoise_file(&input, &output, &roles, &params, false, &WriteOptions::default()).map(|_| ())
         }),
-    ));
-    let failed = out.iter().any(|(_, o)| !matches!(o, Outcome::Ok));
-    if failed {
-        assert!(
-            !output.exists()
-                || out.iter().all(|(_, o)| matches!(o, Outcome::Ok))
-                || !matches!(out[2].1, Outcome::Err(_)),
-            "partial output left"
-        );
+        ("streaming", &|| {
+            api::denoise_file_streaming(&input, &output, &roles, &params, &opts, OutputCompression::Zip).map(|_| ())
+        }),
+    ];
+    for (name, run) in runs {
+        let _ = std::fs::remove_file(&output);
+        let outcome = guarded(run);
+        if !matches!(outcome, Outcome::Ok) {
+            assert!(!output.exists(), "{name} failed but left an output file");
+        }
+        out.push((name, outcome));
     }
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     assert_eq!(std::fs::read(&input).unwrap(), bytes, "the input must never be modified");
     out
 }
@@ -353,10 +343,10 @@ fn absurd_header_values_are_refused_before_allocation() {
         }
         // The refusal names the problem, not just "failed".
         for (path, o) in &out {
-            if let Outcome::Err(m) = o {
-                if m.len() < 30 {
-                    failures.push(format!("{case}: {path}: terse error {m}"));
-                }
+            if let Outcome::Err(m) = o
+                && m.len() < 30
+            {
+                failures.push(format!("{case}: {path}: terse error {m}"));
             }
         }
     }
