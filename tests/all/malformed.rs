@@ -68,6 +68,8 @@ pub fn offset_table(bytes: &[u8]) -> (usize, Vec<u64>) {
     panic!("no offset table found");
 }
 
+type Run<'a> = dyn Fn() -> Result<(), nldenoise::Error> + 'a;
+
 /// What happened when a path read the file.
 #[derive(Debug)]
 pub enum Outcome {
@@ -100,7 +102,7 @@ pub fn run_all(dir: &Path, bytes: &[u8]) -> Vec<(&'static str, Outcome)> {
     let opts = StreamOptions { tile_size: 16, threads: 2, memory_limit: 64 << 20, ..StreamOptions::default() };
     let roles = RoleOptions::default();
     let mut out = vec![("read_frame", guarded(|| exrio::read_frame(&input).map(|_| ())))];
-    let runs: [(&'static str, &dyn Fn() -> Result<(), nldenoise::Error>); 2] = [
+    let runs: [(&'static str, &Run); 2] = [
         ("denoise_file", &|| {
             api::denoise_file(&input, &output, &roles, &params, false, &WriteOptions::default()).map(|_| ())
         }),
