@@ -19,6 +19,9 @@ pub struct Report {
     pub halo: usize,
     /// Channels whose values were replaced.
     pub replaced: Vec<String>,
+    /// Pixels that had an unusable input sample (NaN, infinite, out of range)
+    /// repaired before filtering.
+    pub repaired: usize,
 }
 
 /// Denoise `frame` in place: the beauty and light layers are replaced by their
@@ -36,7 +39,7 @@ pub fn denoise_frame(
     let inputs = roles.inputs(frame);
     let pipeline = filter::Pipeline::new(*params, filter::InputShape::of(&inputs));
     let rect = frame.data_window;
-    let out = filter::denoise_region(&inputs, rect, rect, params)?;
+    let out = filter::denoise_region(&inputs, rect, rect, params).map_err(|e| e.in_file(source))?;
     drop(inputs);
     let mut replaced = Vec::new();
     let pairs = roles
@@ -52,7 +55,7 @@ pub fn denoise_frame(
         });
         replaced.push(name.clone());
     }
-    Ok(Report { roles, halo: pipeline.halo(), replaced })
+    Ok(Report { roles, halo: pipeline.halo(), replaced, repaired: out.repaired })
 }
 
 /// Read `input`, denoise it, and write `output` atomically.
@@ -107,5 +110,5 @@ pub fn denoise_file_streaming(
     opts.out_block_rows = compression.to_exr().scan_lines_per_block();
     let mut sink = ExrSink::create(output, source.data_window(), &channels, compression, Some(source.header()))?;
     let stream = engine::denoise_stream(&mut source, &mut sink, &roles, params, &opts).map_err(|e| e.in_file(input))?;
-    Ok((Report { halo: stream.halo, replaced: outputs, roles }, stream))
+    Ok((Report { halo: stream.halo, replaced: outputs, roles, repaired: stream.repaired }, stream))
 }

@@ -96,6 +96,7 @@ fn whole_frame(a: &DenoiseArgs) -> anyhow::Result<()> {
         report.roles.features.len(),
         report.roles.layers.len()
     );
+    info!("{} pixels had NaN, infinite or out-of-range inputs and were repaired", report.repaired);
     let t2 = Instant::now();
     exrio::write_frame(&a.output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
     info!("wrote {} in {:.2}s", a.output.display(), t2.elapsed().as_secs_f64());

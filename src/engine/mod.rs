@@ -104,6 +104,17 @@ pub struct StreamReport {
     pub filter_time: Duration,
     /// Time the writer spent handing rows to the sink.
     pub write_time: Duration,
+    /// Pixels that had an unusable input sample (NaN, infinite, out of
+    /// range) repaired before filtering (`filter::repair`).
+    pub repaired: usize,
+}
+
+/// What the filter stage counts.
+#[derive(Default)]
+struct FilterCounters {
+    tiles: usize,
+    filtered_px: usize,
+    repaired: usize,
 }
 
 struct BandIn {
@@ -225,6 +236,7 @@ pub fn denoise_stream(
         read_time: Duration::ZERO,
         filter_time: Duration::ZERO,
         write_time: Duration::ZERO,
+        repaired: 0,
     };
     let names_ref = &names;
     let cp_ref = &cp;
@@ -254,8 +266,7 @@ pub fn denoise_stream(
         // Filter.
         let filter = s.spawn(move || {
             let mut spent = Duration::ZERO;
-            let mut tiles = 0usize;
-            let mut filtered_px = 0usize;
+            let mut counters = FilterCounters::default();
             for msg in in_rx {
                 let t = Instant::now();
                 let res = msg.and_then(|b| {
@@ -271,8 +282,7 @@ pub fn denoise_stream(
                         cp_ref,
                         pool_ref,
                         opts.half,
-                        &mut tiles,
-                        &mut filtered_px,
+                        &mut counters,
                     )
                 });
                 spent += t.elapsed();
@@ -281,7 +291,7 @@ pub fn denoise_stream(
                     break;
                 }
             }
-            (spent, tiles, filtered_px)
+            (spent, counters)
         });
         // Writer (this thread).
         let mut spent = Duration::ZERO;
@@ -307,10 +317,11 @@ pub fn denoise_stream(
         (read, filt, result.map(|_| spent))
     });
     report.read_time = read_res?;
-    let (ft, tiles, filtered_px) = filter_res?;
+    let (ft, counters) = filter_res?;
     report.filter_time = ft;
-    report.tiles = tiles;
-    report.halo_overhead = filtered_px as f64 / frame.area().max(1) as f64;
+    report.tiles = counters.tiles;
+    report.halo_overhead = counters.filtered_px as f64 / frame.area().max(1) as f64;
+    report.repaired = counters.repaired;
     report.write_time = write_res?;
     let t = Instant::now();
     sink.finish()?;
@@ -324,6 +335,7 @@ pub fn denoise_stream(
         report.write_time.as_secs_f64(),
         report.halo_overhead
     );
+    info!("{} pixels had NaN, infinite or out-of-range inputs and were repaired", report.repaired);
     Ok(report)
 }
 
@@ -339,8 +351,7 @@ fn filter_band(
     cp: &ChannelPlan,
     pool: &rayon::ThreadPool,
     half: bool,
-    tiles_done: &mut usize,
-    filtered_px: &mut usize,
+    counters: &mut FilterCounters,
 ) -> Result<Vec<ChannelRows>, Error> {
     let BandIn { band, filter_rows, other_rows } = b;
     // Filter channels that are carried (not denoised) go out over the band only.
@@ -364,8 +375,9 @@ fn filter_band(
     });
     drop(planes);
     let tiles = band.tiles(plan.tile_width, plan.band_rows);
-    *tiles_done += tiles.len();
-    *filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
+    counters.tiles += tiles.len();
+    counters.filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
+    let repaired = std::sync::atomic::AtomicUsize::new(0);
     // Each finished tile is pasted into the band at once, so only the tiles
     // being filtered hold results.
     let out_planes = std::sync::Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect::<Vec<_>>());
@@ -374,6 +386,7 @@ fn filter_band(
             let window = inputs.crop(t.expand(halo).intersect(&frame));
             let d = filter::denoise_region(&window, frame, *t, params)?;
             drop(window);
+            repaired.fetch_add(d.repaired, std::sync::atomic::Ordering::Relaxed);
             let mut planes = out_planes.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
             for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
                 dst.paste(src);
@@ -382,6 +395,7 @@ fn filter_band(
         })
     })?;
     drop(inputs);
+    counters.repaired += repaired.into_inner();
     let n_tiles = tiles.len();
     let out_planes = out_planes.into_inner().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
     for (&i, p) in cp.output_idx.iter().zip(out_planes) {

@@ -11,6 +11,7 @@ pub mod features;
 pub mod kernels;
 pub mod nlmeans;
 pub mod reference;
+pub mod repair;
 pub mod simd;
 pub mod variance;
 
@@ -200,6 +201,9 @@ pub struct Denoised {
     pub colour: Vec<Plane>,
     /// Denoised layers, in input order.
     pub layers: Vec<Vec<Plane>>,
+    /// Pixels of the output rectangle that had an unusable input sample
+    /// (NaN, infinite, out of range) repaired before filtering ([`repair`]).
+    pub repaired: usize,
 }
 
 /// What kinds of input the pipeline has: enough to derive every stage's reach.
@@ -233,7 +237,9 @@ impl InputShape {
 /// * a prefiltered feature adds its own NL-means reach `r_fp + 2 f_fp`, and its
 ///   variance a further `rho`.
 ///
-/// The halo is the largest of these reaches over the inputs present.
+/// The halo is the largest of these reaches over the inputs present, plus
+/// [`repair::REPAIR_RADIUS`] for the repair of unusable samples, which reads
+/// a 3×3 neighbourhood of every input sample a stage reads.
 #[derive(Clone, Debug)]
 pub struct Pipeline {
     params: Params,
@@ -281,7 +287,7 @@ impl Pipeline {
             let (v, var) = self.feature_radii(j);
             h = h.max(v).max(var);
         }
-        h
+        h + repair::REPAIR_RADIUS
     }
 
     /// One line per stage, for `nldenoise info --plan` and logs.
@@ -316,6 +322,10 @@ impl Pipeline {
                 if var > 0 { format!(", variance within {var}") } else { String::new() }
             ));
         }
+        lines.push(format!(
+            "repair of NaN/Inf/out-of-range samples: mean of the 3x3 neighbourhood, +{}",
+            repair::REPAIR_RADIUS
+        ));
         lines.push(format!("halo = {}", self.halo()));
         lines
     }
@@ -367,12 +377,14 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
     }
     let pipeline = Pipeline::new(*params, InputShape::of(inputs));
     let main_rect = out.expand(pipeline.main_radius()).intersect(&frame);
-    let var_rect = out.expand(pipeline.variance_radius()).intersect(&frame);
     let rho = params.variance_prefilter_radius;
+    // Inputs are read one pixel further than each stage's reach, for the repair.
+    let reach = |radius: usize| out.expand(radius + repair::REPAIR_RADIUS).intersect(&frame);
+    let (main_in, var_in) = (reach(pipeline.main_radius()), reach(pipeline.variance_radius()));
 
-    check_buffer(&inputs.colour, main_rect, var_rect)?;
+    check_buffer(&inputs.colour, main_in, var_in)?;
     for layer in &inputs.layers {
-        check_buffer(layer, main_rect, var_rect)?;
+        check_buffer(layer, main_in, var_in)?;
         if layer.values.len() != inputs.colour.values.len() {
             return Err(Error::InvalidInput(format!(
                 "layer {} has {} channels but the beauty has {}",
@@ -388,7 +400,7 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
             return Err(Error::InvalidInput(format!("feature {} has no channels", feat.name)));
         }
         for p in &feat.values {
-            check_cover(&feat.name, p, out.expand(vr).intersect(&frame))?;
+            check_cover(&feat.name, p, reach(vr))?;
         }
         if let Some(v) = &feat.variance {
             if v.len() != feat.values.len() {
@@ -401,14 +413,16 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
             }
             if varr > 0 {
                 for p in v {
-                    check_cover(&format!("variance of {}", feat.name), p, out.expand(varr).intersect(&frame))?;
+                    check_cover(&format!("variance of {}", feat.name), p, reach(varr))?;
                 }
             }
         }
     }
     if out.is_empty() {
-        return Ok(Denoised { colour: Vec::new(), layers: Vec::new() });
+        return Ok(Denoised { colour: Vec::new(), layers: Vec::new(), repaired: 0 });
     }
+    let (inputs, repaired) = repair::repair_inputs(inputs, frame, out);
+    let inputs = &*inputs;
 
     let buffers: Vec<&Buffer> =
         if inputs.layers.is_empty() { vec![&inputs.colour] } else { inputs.layers.iter().collect() };
@@ -428,7 +442,7 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
 
     let mut results = nlmeans::nlmeans(&jobs, &guides, frame, out, &params.main_settings());
     if inputs.layers.is_empty() {
-        Ok(Denoised { colour: results.pop().expect("one job"), layers: Vec::new() })
+        Ok(Denoised { colour: results.pop().expect("one job"), layers: Vec::new(), repaired })
     } else {
         let mut colour: Vec<Plane> = results[0].clone();
         for layer in &results[1..] {
@@ -438,6 +452,6 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
                 }
             }
         }
-        Ok(Denoised { colour, layers: results })
+        Ok(Denoised { colour, layers: results, repaired })
     }
 }

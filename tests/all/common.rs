@@ -129,3 +129,23 @@ pub fn small_params(r: usize, f: usize) -> Params {
 pub fn bits(d: &nldenoise::filter::Denoised) -> Vec<Vec<u32>> {
     d.colour.iter().chain(d.layers.iter().flatten()).map(|p| p.data().iter().map(|v| v.to_bits()).collect()).collect()
 }
+
+/// Unusable samples a renderer can emit.
+pub const BAD_VALUES: [f32; 6] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30, f32::MIN];
+
+/// `inputs` with bad samples written into every plane (values and variances,
+/// a negative variance too) at `pixels`, cycling through [`BAD_VALUES`].
+pub fn with_bad_samples(inputs: &FrameInputs, pixels: &[(i64, i64)]) -> FrameInputs {
+    let counter = std::cell::Cell::new(0usize);
+    inputs.map_planes(&|p: &Plane| {
+        let mut q = p.clone();
+        for &(x, y) in pixels {
+            if q.rect().contains(x, y) {
+                let i = counter.get();
+                counter.set(i + 1);
+                q.set(x, y, if i % 7 == 6 { -0.5 } else { BAD_VALUES[i % BAD_VALUES.len()] });
+            }
+        }
+        q
+    })
+}

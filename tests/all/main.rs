@@ -6,6 +6,7 @@ mod exr_io;
 mod filter_math;
 mod malformed;
 mod memory;
+mod nonfinite;
 mod reference;
 mod simd;
 mod streaming;

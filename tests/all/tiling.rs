@@ -26,7 +26,7 @@ fn tiled(inputs: &FrameInputs, frame: Rect, params: &Params, tw: usize, th: usiz
             }
         }
     }
-    filter::Denoised { colour, layers }
+    filter::Denoised { colour, layers, repaired: 0 }
 }
 
 fn assert_tiled_equals_whole(frame: Rect, seed: u64, kinds: Kinds, params: &Params, tiles: &[(usize, usize)]) {
@@ -79,8 +79,9 @@ fn thread_count_does_not_change_bits() {
     }
 }
 
-/// Replace every sample of `inputs` outside `keep` by `value`.
-fn poison_outside(inputs: &FrameInputs, keep: Rect, value: f32) -> FrameInputs {
+/// Replace every sample of `inputs` at Chebyshev distance `>= from` of `tile` by `value`.
+fn poison_from(inputs: &FrameInputs, tile: Rect, from: usize, value: f32) -> FrameInputs {
+    let keep = tile.expand(from - 1);
     inputs.map_planes(&|p: &Plane| {
         let mut q = p.clone();
         let r = p.rect();
@@ -119,18 +120,46 @@ fn halo_is_sufficient_and_tight() {
             tile.expand(halo + 1).x0 >= 0 && frame.contains_rect(&tile.expand(halo + 1)),
             "test tile must not touch the border"
         );
-        let want = bits(&filter::denoise_region(&inputs, frame, tile, &params).unwrap());
+        // The ring at distance halo - 1 holds NaN, so the repair reads the ring at the halo.
+        let with_ring = |outside_from: usize, value: f32| -> FrameInputs {
+            inputs.map_planes(&|p: &Plane| {
+                Plane::from_fn(p.rect(), |x, y| {
+                    let d =
+                        (tile.x0 - x).max(x - (tile.x1 - 1)).max(tile.y0 - y).max(y - (tile.y1 - 1)).max(0) as usize;
+                    if d == halo - 1 {
+                        f32::NAN
+                    } else if d >= outside_from {
+                        value
+                    } else {
+                        p.get(x, y)
+                    }
+                })
+            })
+        };
+        let base = with_ring(usize::MAX, 0.0);
+        let want = bits(&filter::denoise_region(&base, frame, tile, &params).unwrap());
+        assert!(want.iter().flatten().all(|b| f32::from_bits(*b).is_finite()), "{kinds:?}: NaN ring leaked");
         // Anything beyond the halo may change without effect...
-        let far = poison_outside(&inputs, tile.expand(halo), 123.0);
+        let far = with_ring(halo + 1, 123.0);
         assert!(
             bits(&filter::denoise_region(&far, frame, tile, &params).unwrap()) == want,
             "{kinds:?}: data beyond the halo {halo} changed the output"
         );
         // ...but the ring at exactly the halo distance matters: one pixel less is not enough.
-        let near = poison_outside(&inputs, tile.expand(halo - 1), 123.0);
+        let near = with_ring(halo, 123.0);
         assert!(
             bits(&filter::denoise_region(&near, frame, tile, &params).unwrap()) != want,
             "{kinds:?}: halo {halo} is not tight"
+        );
+        // Without unusable samples, the stages themselves read exactly halo - 1.
+        let clean = bits(&filter::denoise_region(&inputs, frame, tile, &params).unwrap());
+        assert!(
+            bits(&filter::denoise_region(&poison_from(&inputs, tile, halo, 123.0), frame, tile, &params).unwrap())
+                == clean
+        );
+        assert!(
+            bits(&filter::denoise_region(&poison_from(&inputs, tile, halo - 1, 123.0), frame, tile, &params).unwrap())
+                != clean
         );
     }
 }

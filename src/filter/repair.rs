@@ -1,0 +1,149 @@
+//! Repair of unusable input samples before filtering (docs/robustness.md).
+//!
+//! Renderers emit NaN and infinite samples (a buggy shader, a division by
+//! zero), negative variances and absurd fireflies. Left alone, one such sample
+//! turns every patch distance that touches it into NaN or infinity and can
+//! blank or poison a whole neighbourhood of the output. The rule:
+//!
+//! * a value sample (colour, half buffer, layer, feature) is *usable* when it
+//!   is finite and `|v| <= MAX_VALUE`; a variance sample when
+//!   `0 <= v <= MAX_VARIANCE` (NaN fails both tests);
+//! * an unusable sample is replaced, before any stage reads it, by the mean of
+//!   the usable samples of the same plane in its 3×3 neighbourhood (clipped to
+//!   the frame), or by `0` when there are none; the repaired frame is then
+//!   filtered as any other, so the pixel's output is its filtered estimate;
+//! * the bounds keep every intermediate finite: squared differences stay below
+//!   `4e36`, and a distance that still overflows only makes a weight zero.
+//!
+//! The repair reads a 3×3 neighbourhood, so it adds [`REPAIR_RADIUS`] to the
+//! halo; it reads only original samples, in a fixed order, so tiles and the
+//! whole frame repair identically (SPEC §6).
+
+use std::borrow::Cow;
+
+use super::{Buffer, Feature, FrameInputs, VarianceSource};
+use crate::geom::Rect;
+use crate::image::Plane;
+
+/// How far the repair of a sample reads.
+pub const REPAIR_RADIUS: usize = 1;
+
+/// Largest usable magnitude of a value sample.
+pub const MAX_VALUE: f32 = 1e18;
+
+/// Largest usable variance.
+pub const MAX_VARIANCE: f32 = 1e30;
+
+/// What a plane holds, which decides what is usable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleRole {
+    /// Colour, half buffer, layer or feature values.
+    Value,
+    /// A variance (must be non-negative).
+    Variance,
+}
+
+/// Whether the filter can use sample `v` as it is.
+#[inline(always)]
+pub fn usable(role: SampleRole, v: f32) -> bool {
+    match role {
+        SampleRole::Value => v.abs() <= MAX_VALUE,
+        SampleRole::Variance => (0.0..=MAX_VARIANCE).contains(&v),
+    }
+}
+
+/// Marks pixels of `rect` that had at least one sample repaired.
+struct Mask {
+    rect: Rect,
+    hit: Vec<bool>,
+}
+
+impl Mask {
+    fn mark(&mut self, x: i64, y: i64) {
+        if self.rect.contains(x, y) {
+            let i = (y - self.rect.y0) as usize * self.rect.width() + (x - self.rect.x0) as usize;
+            self.hit[i] = true;
+        }
+    }
+}
+
+/// The plane with its unusable samples repaired, or `None` when all are usable.
+fn repair_plane(p: &Plane, role: SampleRole, frame: Rect, mask: &mut Mask) -> Option<Plane> {
+    if p.data().iter().all(|&v| usable(role, v)) {
+        return None;
+    }
+    let r = p.rect();
+    let clip = r.intersect(&frame);
+    let mut out = p.clone();
+    let w = r.width();
+    for (i, &v) in p.data().iter().enumerate() {
+        if usable(role, v) {
+            continue;
+        }
+        let (x, y) = (r.x0 + (i % w) as i64, r.y0 + (i / w) as i64);
+        let (mut sum, mut n) = (0.0f32, 0u32);
+        for yy in (y - 1).max(clip.y0)..(y + 2).min(clip.y1) {
+            for xx in (x - 1).max(clip.x0)..(x + 2).min(clip.x1) {
+                let s = p.get(xx, yy);
+                if usable(role, s) {
+                    sum += s;
+                    n += 1;
+                }
+            }
+        }
+        out.set(x, y, if n > 0 { sum / n as f32 } else { 0.0 });
+        mask.mark(x, y);
+    }
+    Some(out)
+}
+
+fn all_usable(inputs: &FrameInputs) -> bool {
+    let ok = |planes: &[Plane], role| planes.iter().all(|p| p.data().iter().all(|&v| usable(role, v)));
+    let buffer_ok = |b: &Buffer| {
+        ok(&b.values, SampleRole::Value)
+            && match &b.variance {
+                VarianceSource::Sample(v) => ok(v, SampleRole::Variance),
+                VarianceSource::Halves { a, b } => ok(a, SampleRole::Value) && ok(b, SampleRole::Value),
+            }
+    };
+    buffer_ok(&inputs.colour)
+        && inputs.layers.iter().all(buffer_ok)
+        && inputs.features.iter().all(|f| {
+            ok(&f.values, SampleRole::Value) && f.variance.as_deref().is_none_or(|v| ok(v, SampleRole::Variance))
+        })
+}
+
+/// `inputs` with every unusable sample repaired (borrowed unchanged when there
+/// are none), and the number of pixels of `count_rect` that had a sample repaired.
+pub fn repair_inputs(inputs: &FrameInputs, frame: Rect, count_rect: Rect) -> (Cow<'_, FrameInputs>, usize) {
+    if all_usable(inputs) {
+        return (Cow::Borrowed(inputs), 0);
+    }
+    let mut mask = Mask { rect: count_rect, hit: vec![false; count_rect.area()] };
+    let mut planes = |v: &[Plane], role: SampleRole| -> Vec<Plane> {
+        v.iter().map(|p| repair_plane(p, role, frame, &mut mask).unwrap_or_else(|| p.clone())).collect()
+    };
+    let mut buffer = |b: &Buffer| Buffer {
+        name: b.name.clone(),
+        values: planes(&b.values, SampleRole::Value),
+        variance: match &b.variance {
+            VarianceSource::Sample(v) => VarianceSource::Sample(planes(v, SampleRole::Variance)),
+            VarianceSource::Halves { a, b } => {
+                VarianceSource::Halves { a: planes(a, SampleRole::Value), b: planes(b, SampleRole::Value) }
+            }
+        },
+    };
+    let colour = buffer(&inputs.colour);
+    let layers = inputs.layers.iter().map(&mut buffer).collect();
+    let features = inputs
+        .features
+        .iter()
+        .map(|f| Feature {
+            name: f.name.clone(),
+            values: planes(&f.values, SampleRole::Value),
+            variance: f.variance.as_deref().map(|v| planes(v, SampleRole::Variance)),
+        })
+        .collect();
+    let repaired = mask.hit.iter().filter(|&&h| h).count();
+    (Cow::Owned(FrameInputs { colour, features, layers }), repaired)
+}
