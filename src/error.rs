@@ -21,7 +21,9 @@ pub enum Error {
         message: String,
     },
     /// Channels the denoiser needs are missing or inconsistent.
-    #[error("{path}: {message}\n  channels found: {found}")]
+    #[error(
+        "{path}: {message}\n  channels found: {found}\n  to choose channels: --map ROLE=CH[,CH...] with ROLE one of color, variance, A, B, feature.NAME, feature-var.NAME, layer.NAME, layer-var.NAME"
+    )]
     Channels {
         /// The file.
         path: PathBuf,

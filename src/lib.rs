@@ -34,6 +34,8 @@ pub mod engine;
 pub mod error;
 pub mod exrio;
 pub mod filter;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod geom;
 pub mod image;
 pub mod metrics;

@@ -156,6 +156,12 @@ fn init_logging(verbose: u8, quiet: bool) {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     nldenoise::engine::budget::bound_allocator();
+    // Interrupted (Ctrl-C, a farm's SIGTERM): leave no temporary output behind.
+    let _ = ctrlc::set_handler(|| {
+        nldenoise::exrio::remove_unfinished_outputs();
+        eprintln!("error: interrupted; no output written");
+        std::process::exit(130);
+    });
     init_logging(cli.verbose, cli.quiet);
     let result = match cli.command {
         Command::Denoise(a) => denoise::run(a),

@@ -271,10 +271,27 @@ pub fn read_frame(path: &Path) -> std::result::Result<Frame, Error> {
 pub fn read_frame_within(path: &Path, limit_bytes: u64) -> std::result::Result<Frame, Error> {
     let io_err = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
     let file_len = std::fs::metadata(path).map_err(io_err)?.len();
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
+    let file = std::io::BufReader::new(File::open(path).map_err(io_err)?);
+    read_frame_from(path, file, file_len, limit_bytes)
+}
+
+/// [`read_frame_within`] from the bytes of a file held in memory; `name` is used in errors.
+pub fn read_frame_from_bytes(name: &Path, bytes: &[u8], limit_bytes: u64) -> std::result::Result<Frame, Error> {
+    read_frame_from(name, std::io::Cursor::new(bytes), bytes.len() as u64, limit_bytes)
+}
+
+fn read_frame_from(
+    path: &Path,
+    mut file: impl std::io::Read + std::io::Seek + Send,
+    file_len: u64,
+    limit_bytes: u64,
+) -> std::result::Result<Frame, Error> {
+    let io_err = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
+    let meta = exr::meta::MetaData::read_from_buffered(&mut file, false).map_err(|e| match e {
         exr::error::Error::Io(io) => io_err(io),
         other => exr_err(path, format!("not a readable EXR file: {other}")),
     })?;
+    file.seek(std::io::SeekFrom::Start(0)).map_err(io_err)?;
     let header = check_supported(path, &meta, file_len)?;
     let bytes = (header.layer_size.0 as u64)
         .saturating_mul(header.layer_size.1 as u64)
@@ -299,7 +316,7 @@ pub fn read_frame_within(path: &Path, limit_bytes: u64) -> std::result::Result<F
         .all_channels()
         .first_valid_layer()
         .all_attributes()
-        .from_file(path)
+        .from_buffered(file)
         .map_err(|e| exr_err(path, format!("could not decode: {e}")))?;
     let layer = image.layer_data;
     let pos = layer.attributes.layer_position;
@@ -370,6 +387,22 @@ pub struct WriteOptions {
     pub decreasing: bool,
 }
 
+/// Temporary files being written by this process (see [`remove_unfinished_outputs`]).
+static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Remove every temporary output file this process is still writing. Nothing
+/// is ever written at an output path before it is complete, so after this no
+/// trace of the unfinished outputs remains. The CLI calls it when it receives
+/// SIGINT, SIGTERM or SIGHUP; embedders with their own signal handling can do
+/// the same. (SIGKILL cannot be caught: a hidden `.NAME.nldenoise-*.tmp` file
+/// may then remain beside the output, never a partial file at its path.)
+pub fn remove_unfinished_outputs() {
+    let list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
+    for tmp in list.iter() {
+        let _ = std::fs::remove_file(tmp);
+    }
+}
+
 /// A temporary file beside `path` that is renamed over it on success and removed otherwise.
 pub(crate) struct AtomicTarget {
     pub(crate) tmp: PathBuf,
@@ -378,8 +411,11 @@ pub(crate) struct AtomicTarget {
 
 impl AtomicTarget {
     pub(crate) fn new(path: &Path) -> AtomicTarget {
+        static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out.exr".into());
-        let tmp = path.with_file_name(format!(".{name}.nldenoise-{}.tmp", std::process::id()));
+        let tmp = path.with_file_name(format!(".{name}.nldenoise-{}-{n}.tmp", std::process::id()));
+        UNFINISHED.lock().unwrap_or_else(|e| e.into_inner()).push(tmp.clone());
         AtomicTarget { tmp, done: false }
     }
 }
@@ -389,6 +425,7 @@ impl Drop for AtomicTarget {
         if !self.done {
             let _ = std::fs::remove_file(&self.tmp);
         }
+        UNFINISHED.lock().unwrap_or_else(|e| e.into_inner()).retain(|p| p != &self.tmp);
     }
 }
 

@@ -191,7 +191,16 @@ fn resolve_feature_channels(names: &Names<'_>, name: &str) -> Option<Vec<String>
 }
 
 fn err(path: &Path, names: &[String], message: impl Into<String>) -> Error {
-    Error::Channels { path: path.to_path_buf(), message: message.into(), found: names.join(", ") }
+    // A file may hold thousands of channels: list the first ones.
+    const SHOWN: usize = 60;
+    let mut found = names.iter().take(SHOWN).cloned().collect::<Vec<_>>().join(", ");
+    if names.len() > SHOWN {
+        found.push_str(&format!(", ... ({} channels in all; `nldenoise info` lists them)", names.len()));
+    }
+    if names.is_empty() {
+        found = "none".into();
+    }
+    Error::Channels { path: path.to_path_buf(), message: message.into(), found }
 }
 
 /// Choose the roles of a frame's channels.

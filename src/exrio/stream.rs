@@ -42,10 +42,26 @@ struct DecodedBlock {
     channels: Vec<Samples>,
 }
 
+/// The bytes of a file: memory-mapped, or held in memory (fuzzing, embedding).
+enum FileBytes {
+    Mapped(Mmap),
+    Owned(Vec<u8>),
+}
+
+impl std::ops::Deref for FileBytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            FileBytes::Mapped(m) => m,
+            FileBytes::Owned(v) => v,
+        }
+    }
+}
+
 /// A memory-mapped EXR file read row window by row window.
 pub struct ExrSource {
     path: PathBuf,
-    mmap: Mmap,
+    mmap: FileBytes,
     header: Header,
     data_window: Rect,
     names: Vec<String>,
@@ -63,9 +79,19 @@ impl ExrSource {
         // another process truncates it meanwhile, reads may fault (SIGBUS), as for
         // any memory-mapped reader. We never write through the map.
         let mmap = unsafe { Mmap::map(&file) }.map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+        ExrSource::with_bytes(path, FileBytes::Mapped(mmap))
+    }
+
+    /// A source over the bytes of an EXR file held in memory; `name` is used in errors.
+    pub fn from_bytes(name: &Path, bytes: Vec<u8>) -> Result<ExrSource, Error> {
+        ExrSource::with_bytes(name, FileBytes::Owned(bytes))
+    }
+
+    fn with_bytes(path: &Path, mmap: FileBytes) -> Result<ExrSource, Error> {
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&mmap[..]), false)
             .map_err(|e| exr_err(path, format!("not a readable EXR file: {e}")))?;
         let header = super::check_supported(path, &meta, mmap.len() as u64)?;
+        check_offset_table(path, &mmap, header.chunk_count)?;
         let pos = header.own_attributes.layer_position;
         let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, header.layer_size.0, header.layer_size.1);
         let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
@@ -180,11 +206,58 @@ impl ExrSource {
         // SAFETY: the mapping is read-only and file-backed; MADV_DONTNEED only
         // discards our view of clean pages, and no slice of the map is alive here.
         #[cfg(unix)]
-        unsafe {
-            let _ = self.mmap.unchecked_advise(memmap2::UncheckedAdvice::DontNeed);
+        if let FileBytes::Mapped(m) = &self.mmap {
+            unsafe {
+                let _ = m.unchecked_advise(memmap2::UncheckedAdvice::DontNeed);
+            }
         }
         Ok(())
     }
+}
+
+/// Where a single-part header ends: after the magic number and version, a
+/// list of attributes (name, type, size, value), closed by an empty name.
+fn header_end(bytes: &[u8]) -> Option<usize> {
+    let mut at = 8usize;
+    let cstr_end = |from: usize| bytes.get(from..)?.iter().position(|&c| c == 0).map(|n| from + n);
+    loop {
+        let name_end = cstr_end(at)?;
+        if name_end == at {
+            return Some(at + 1);
+        }
+        let type_end = cstr_end(name_end + 1)?;
+        let size = i32::from_le_bytes(bytes.get(type_end + 1..type_end + 5)?.try_into().ok()?);
+        at = (type_end + 5).checked_add(usize::try_from(size).ok()?)?;
+    }
+}
+
+/// Check the offset table before anything is decoded, so that a truncated or
+/// corrupt file fails at once (not after filtering half of it): every chunk
+/// must start after the table and leave room for its own header in the file.
+fn check_offset_table(path: &Path, bytes: &[u8], chunk_count: usize) -> Result<(), Error> {
+    let start = header_end(bytes).ok_or_else(|| exr_err(path, "the header is not terminated"))?;
+    let table_end = chunk_count.checked_mul(8).and_then(|n| n.checked_add(start)).filter(|&e| e <= bytes.len());
+    let Some(table_end) = table_end else {
+        return Err(exr_err(
+            path,
+            format!("the file ends inside its offset table of {chunk_count} chunks: the file is truncated"),
+        ));
+    };
+    for (i, entry) in bytes[start..table_end].chunks_exact(8).enumerate() {
+        let offset = u64::from_le_bytes(entry.try_into().expect("8 bytes"));
+        if offset < table_end as u64 || offset.saturating_add(8) > bytes.len() as u64 {
+            return Err(exr_err(
+                path,
+                format!(
+                    "chunk {i} of {chunk_count} starts at byte {offset}, outside the file's {} bytes of chunk data \
+                     ({table_end}..{}): the file is truncated or its offset table corrupt",
+                    bytes.len() - table_end,
+                    bytes.len()
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl RowSource for ExrSource {
