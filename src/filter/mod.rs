@@ -93,6 +93,17 @@ impl Params {
                 Ok(())
             }
         };
+        // Bounds that keep every intermediate of the distance finite and
+        // normal (see `kernels::recip` and `repair`).
+        if self.strength > 1000.0 || self.feature_prefilter.strength > 1000.0 {
+            return Err(Error::InvalidParameter(format!(
+                "strength must be at most 1000, got {}",
+                self.strength.max(self.feature_prefilter.strength)
+            )));
+        }
+        if !(1e-30..=1.0).contains(&self.eps) {
+            return Err(Error::InvalidParameter(format!("eps must be within [1e-30, 1], got {}", self.eps)));
+        }
         finite_pos("strength", self.strength, true)?;
         finite_pos("alpha", self.alpha, true)?;
         finite_pos("eps", self.eps, false)?;

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, box_mean, exp_neg_clamped};
+use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, exp_neg_clamped};
 use super::simd::{self, Tier};
 use crate::geom::Rect;
 use crate::image::Plane;
@@ -123,6 +123,22 @@ tier_wrapper!(filter_block_avx512, "avx512f");
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
+///
+/// For each offset, three passes over the block, each fused so that no
+/// block-sized intermediate is written and read back more than once:
+///
+/// 1. per row of `d_rect`: the per-pixel distance into a row buffer, then its
+///    horizontal window sums into `h1` (columns of `w_rect`);
+/// 2. per row of `w_rect`: the vertical sum of `h1` rows, scaled by the
+///    window's `1 / count` (the patch distance), the weight, then its
+///    horizontal window sums into `h2` (columns of `acc_rect`);
+/// 3. per row of `acc_rect`: the vertical sum of `h2` rows, scaled (the mean
+///    weight), accumulated into the numerators and the denominator.
+///
+/// Every window sum starts from its first sample and adds the others in
+/// increasing frame coordinate, over the window clipped to the offset's valid
+/// rectangle (a function of the frame): the same operations for a pixel
+/// whichever block, tile or lane computes it.
 #[inline(always)]
 fn filter_block_body(
     jobs: &[Job<'_>],
@@ -132,20 +148,21 @@ fn filter_block_body(
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
     let r = s.search_radius as i64;
-    let f = s.patch_radius;
+    let f = s.patch_radius as i64;
     let k2 = s.strength * s.strength;
     let area = block.area();
+    let bw = block.width();
     let mut num: Vec<Vec<Vec<f32>>> = jobs.iter().map(|j| vec![vec![0.0f32; area]; j.values.len()]).collect();
     let mut den: Vec<Vec<f32>> = jobs.iter().map(|_| vec![0.0f32; area]).collect();
 
-    let cap_d = block.expand(2 * f).area();
-    let cap_w = block.expand(f).area();
-    let mut d2 = vec![0.0f32; cap_d];
-    let mut dpatch = vec![0.0f32; cap_w];
-    let mut wfeat = vec![0.0f32; cap_w];
-    let mut wsum = vec![0.0f32; area];
-    let mut scratch = Vec::with_capacity(cap_d);
-    let mut phi = Vec::with_capacity(block.expand(f).width());
+    let outer = block.expand(2 * s.patch_radius);
+    let mid = block.expand(s.patch_radius);
+    let mut h1 = vec![0.0f32; mid.width() * outer.height()];
+    let mut h2 = vec![0.0f32; bw * mid.height()];
+    let mut drow = vec![0.0f32; outer.width()];
+    let mut wrow = vec![0.0f32; mid.width()];
+    let mut wfeat = vec![0.0f32; mid.area()];
+    let mut phi = Vec::with_capacity(mid.width());
 
     for dy in -r..=r {
         for dx in -r..=r {
@@ -154,24 +171,23 @@ fn filter_block_body(
             if acc_rect.is_empty() {
                 continue;
             }
-            let w_rect = block.expand(f).intersect(&valid);
-            let d_rect = block.expand(2 * f).intersect(&valid);
+            let w_rect = mid.intersect(&valid);
+            let d_rect = outer.intersect(&valid);
+            let (dw, ww, aw) = (d_rect.width(), w_rect.width(), acc_rect.width());
 
             if !features.is_empty() {
                 feature_weights(features, w_rect, dx, dy, &mut wfeat[..w_rect.area()], &mut phi);
             }
 
             for (j, job) in jobs.iter().enumerate() {
-                // Per-pixel distance on d_rect.
-                let dw = d_rect.width();
-                let d2 = &mut d2[..d_rect.area()];
+                // 1. Distance rows and their horizontal sums.
                 let inv_c = 1.0 / job.values.len() as f32;
                 for (ri, y) in (d_rect.y0..d_rect.y1).enumerate() {
-                    let acc = &mut d2[ri * dw..(ri + 1) * dw];
-                    acc.fill(0.0);
+                    let d = &mut drow[..dw];
+                    d.fill(0.0);
                     for (u, v) in job.values.iter().zip(&job.variance) {
                         accumulate_colour_distance(
-                            acc,
+                            d,
                             u.row(y, d_rect.x0, d_rect.x1),
                             u.row(y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
                             v.row(y, d_rect.x0, d_rect.x1),
@@ -181,40 +197,44 @@ fn filter_block_body(
                             k2,
                         );
                     }
-                    for a in acc.iter_mut() {
+                    for a in d.iter_mut() {
                         *a *= inv_c;
                     }
+                    window_sums_row(d, d_rect.x0, valid, f, w_rect.x0, &mut h1[ri * ww..(ri + 1) * ww]);
                 }
-                // Patch distance and weight on w_rect.
-                let dp = &mut dpatch[..w_rect.area()];
-                box_mean(d2, d_rect, valid, f, w_rect, dp, &mut scratch);
-                if features.is_empty() {
-                    for v in dp.iter_mut() {
-                        *v = exp_neg_clamped(*v);
+                // 2. Patch distances, weights, and their horizontal sums.
+                for (ri, y) in (w_rect.y0..w_rect.y1).enumerate() {
+                    let (a, b) = ((y - f).max(valid.y0), (y + f).min(valid.y1 - 1));
+                    let rows = (a - d_rect.y0) as usize..(b - d_rect.y0 + 1) as usize;
+                    let wr = &mut wrow[..ww];
+                    column_sums(&h1, ww, rows, wr);
+                    scale_by_count(wr, w_rect.x0, valid, f, (b - a + 1) as f32);
+                    if features.is_empty() {
+                        for v in wr.iter_mut() {
+                            *v = exp_neg_clamped(*v);
+                        }
+                    } else {
+                        for (v, wf) in wr.iter_mut().zip(&wfeat[ri * ww..(ri + 1) * ww]) {
+                            let wc = exp_neg_clamped(*v);
+                            *v = if *wf < wc { *wf } else { wc };
+                        }
                     }
-                } else {
-                    for (v, wf) in dp.iter_mut().zip(&wfeat[..w_rect.area()]) {
-                        let wc = exp_neg_clamped(*v);
-                        *v = if *wf < wc { *wf } else { wc };
-                    }
+                    window_sums_row(wr, w_rect.x0, valid, f, acc_rect.x0, &mut h2[ri * aw..(ri + 1) * aw]);
                 }
-                // Mean weight of the patches covering each pixel, on acc_rect.
-                let ws = &mut wsum[..acc_rect.area()];
-                box_mean(dp, w_rect, valid, f, acc_rect, ws, &mut scratch);
-                // Accumulate.
-                let aw = acc_rect.width();
-                let bw = block.width();
-                for (ri, y) in (acc_rect.y0..acc_rect.y1).enumerate() {
-                    let wrow = &ws[ri * aw..(ri + 1) * aw];
+                // 3. Mean weights, accumulated.
+                for y in acc_rect.y0..acc_rect.y1 {
+                    let (a, b) = ((y - f).max(valid.y0), (y + f).min(valid.y1 - 1));
+                    let rows = (a - w_rect.y0) as usize..(b - w_rect.y0 + 1) as usize;
+                    let wr = &mut wrow[..aw];
+                    column_sums(&h2, aw, rows, wr);
+                    scale_by_count(wr, acc_rect.x0, valid, f, (b - a + 1) as f32);
                     let off = (y - block.y0) as usize * bw + (acc_rect.x0 - block.x0) as usize;
-                    let drow = &mut den[j][off..off + aw];
-                    for (d, w) in drow.iter_mut().zip(wrow) {
+                    for (d, w) in den[j][off..off + aw].iter_mut().zip(wr.iter()) {
                         *d += *w;
                     }
                     for (c, u) in job.values.iter().enumerate() {
                         let q = u.row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
-                        let nrow = &mut num[j][c][off..off + aw];
-                        for ((n, w), v) in nrow.iter_mut().zip(wrow).zip(q) {
+                        for ((n, w), v) in num[j][c][off..off + aw].iter_mut().zip(wr.iter()).zip(q) {
                             *n += *w * *v;
                         }
                     }
@@ -237,6 +257,113 @@ fn filter_block_body(
                 .collect()
         })
         .collect()
+}
+
+/// Horizontal window sums of one row: `dst[x] = sum of src over
+/// [x - f, x + f] ∩ clip` for `x` from `dst_x0`, starting from the window's
+/// first sample and adding the others in increasing x. `src` starts at
+/// column `src_x0` and covers every window.
+#[inline(always)]
+fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, dst: &mut [f32]) {
+    let dst_x1 = dst_x0 + dst.len() as i64;
+    let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
+    for x in (dst_x0..inner_x0).chain(inner_x1..dst_x1) {
+        let a = ((x - f).max(clip.x0) - src_x0) as usize;
+        let b = ((x + f).min(clip.x1 - 1) - src_x0) as usize;
+        let mut acc = src[a];
+        for v in &src[a + 1..=b] {
+            acc += *v;
+        }
+        dst[(x - dst_x0) as usize] = acc;
+    }
+    let n = (inner_x1 - inner_x0) as usize;
+    if n > 0 {
+        let from = (inner_x0 - f - src_x0) as usize;
+        let out = &mut dst[(inner_x0 - dst_x0) as usize..][..n];
+        match f {
+            1 => taps_sum::<3>(&src[from..from + n + 2], out),
+            2 => taps_sum::<5>(&src[from..from + n + 4], out),
+            3 => taps_sum::<7>(&src[from..from + n + 6], out),
+            4 => taps_sum::<9>(&src[from..from + n + 8], out),
+            _ => {
+                for (i, o) in out.iter_mut().enumerate() {
+                    let w = &src[from + i..=from + i + 2 * f as usize];
+                    let mut acc = w[0];
+                    for v in &w[1..] {
+                        acc += *v;
+                    }
+                    *o = acc;
+                }
+            }
+        }
+    }
+}
+
+/// `out[i] = src[i] + src[i + 1] + ... + src[i + T - 1]`, in that order.
+#[inline(always)]
+fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
+    let n = out.len();
+    let lanes: [&[f32]; T] = std::array::from_fn(|k| &src[k..k + n]);
+    for (i, o) in out.iter_mut().enumerate() {
+        let mut acc = lanes[0][i];
+        for lane in &lanes[1..] {
+            acc += lane[i];
+        }
+        *o = acc;
+    }
+}
+
+/// `out = rows[first] + rows[first + 1] + ...` (rows of width `w` stored
+/// contiguously in `src`), in increasing row order.
+#[inline(always)]
+fn column_sums(src: &[f32], w: usize, rows: std::ops::Range<usize>, out: &mut [f32]) {
+    let row = |k: usize| &src[k * w..(k + 1) * w];
+    match rows.len() {
+        3 => rows_sum::<3>(std::array::from_fn(|k| row(rows.start + k)), out),
+        5 => rows_sum::<5>(std::array::from_fn(|k| row(rows.start + k)), out),
+        7 => rows_sum::<7>(std::array::from_fn(|k| row(rows.start + k)), out),
+        9 => rows_sum::<9>(std::array::from_fn(|k| row(rows.start + k)), out),
+        _ => {
+            out.copy_from_slice(row(rows.start));
+            for k in rows.start + 1..rows.end {
+                for (o, v) in out.iter_mut().zip(row(k)) {
+                    *o += *v;
+                }
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
+    let n = out.len();
+    let rows: [&[f32]; T] = std::array::from_fn(|k| &rows[k][..n]);
+    for (i, o) in out.iter_mut().enumerate() {
+        let mut acc = rows[0][i];
+        for row in &rows[1..] {
+            acc += row[i];
+        }
+        *o = acc;
+    }
+}
+
+/// Turn window sums into means: multiply by `1 / (nx * ny)`, where `nx` is the
+/// clipped window width of each column (from `x0`) and `ny` the row's window
+/// height; the reciprocal is computed once per distinct count.
+#[inline(always)]
+fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32) {
+    let x1 = x0 + row.len() as i64;
+    let inner_x0 = (clip.x0 + f).clamp(x0, x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
+    let inner = 1.0 / ((2 * f + 1) as f32 * ny);
+    for v in &mut row[(inner_x0 - x0) as usize..(inner_x1 - x0) as usize] {
+        *v *= inner;
+    }
+    for x in (x0..inner_x0).chain(inner_x1..x1) {
+        let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
+        row[(x - x0) as usize] *= 1.0 / (nx * ny);
+    }
 }
 
 /// `w_f = exp(-max(0, max_j Phi_j^2))` on `rect` for offset `(dx, dy)`.
