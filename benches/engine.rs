@@ -15,7 +15,7 @@ use nldenoise::geom::Rect;
 
 fn frame_1080p() -> Frame {
     let rect = Rect::from_origin_size(0, 0, 1920, 1080);
-    let mut src = SyntheticSource::new(Synthetic { frame: rect, features: true, sigma: 0.05 });
+    let mut src = SyntheticSource::new(Synthetic { frame: rect, features: true, layers: false, sigma: 0.05 });
     let names = src.channel_names();
     let all: Vec<usize> = (0..names.len()).collect();
     let rows = src.read_rows(&all, rect).unwrap();

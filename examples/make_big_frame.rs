@@ -1,10 +1,11 @@
 //! Write a large synthetic noisy frame in bounded memory, band by band, from
 //! the procedural source through the streaming EXR sink.
 //!
-//! `cargo run --release --example make_big_frame -- WIDTH HEIGHT OUT.exr [--features] [--compression none|rle|zips|zip|piz]`
+//! `cargo run --release --example make_big_frame -- WIDTH HEIGHT OUT.exr [--features] [--layers] [--compression none|rle|zips|zip|piz]`
 //!
 //! Channels: `R,G,B`, half buffers `A.*`/`B.*` (f16), `var.*` (f32), and with
-//! `--features` also `albedo.*`, `N.*` (f16) and `Z` (f32).
+//! `--features` also `albedo.*`, `N.*` (f16) and `Z` (f32); with `--layers`,
+//! `direct.*`, `indirect.*` (f16) and their variances `var.direct.*`, `var.indirect.*` (f32).
 
 use std::path::PathBuf;
 
@@ -17,7 +18,7 @@ use nldenoise::geom::Rect;
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 3 {
-        eprintln!("usage: make_big_frame WIDTH HEIGHT OUT.exr [--features] [--compression NAME]");
+        eprintln!("usage: make_big_frame WIDTH HEIGHT OUT.exr [--features] [--layers] [--compression NAME]");
         std::process::exit(2);
     }
     let (Ok(width), Ok(height)) = (args[0].parse::<usize>(), args[1].parse::<usize>()) else {
@@ -34,8 +35,12 @@ fn main() {
             _ => OutputCompression::Zip,
         };
     let frame = Rect::from_origin_size(0, 0, width, height);
-    let mut source =
-        SyntheticSource::new(Synthetic { frame, features: args.iter().any(|a| a == "--features"), sigma: 0.05 });
+    let mut source = SyntheticSource::new(Synthetic {
+        frame,
+        features: args.iter().any(|a| a == "--features"),
+        layers: args.iter().any(|a| a == "--layers"),
+        sigma: 0.05,
+    });
     let channels: Vec<SinkChannel> = source
         .channel_names()
         .into_iter()

@@ -44,7 +44,7 @@ impl RowSink for ErrorMeter {
 }
 
 fn main() -> Result<(), nldenoise::Error> {
-    let spec = Synthetic { frame: Rect::from_origin_size(0, 0, 640, 360), features: true, sigma: 0.05 };
+    let spec = Synthetic { frame: Rect::from_origin_size(0, 0, 640, 360), features: true, layers: false, sigma: 0.05 };
     let mut source = SyntheticSource::new(spec);
     let names = source.channel_names();
     let roles = roles::detect("synthetic".as_ref(), &names, &RoleOptions::default())?;

@@ -15,6 +15,9 @@ pub struct Synthetic {
     pub frame: Rect,
     /// Add `albedo.*`, `N.*` and `Z` features.
     pub features: bool,
+    /// Add light layers `direct.*` and `indirect.*` (summing to the beauty)
+    /// with their variances `var.direct.*`, `var.indirect.*`.
+    pub layers: bool,
     /// Noise standard deviation of one half buffer.
     pub sigma: f32,
 }
@@ -63,6 +66,14 @@ impl Synthetic {
         if self.features {
             v.extend(FEATURES.iter().map(|(n, h)| (n.to_string(), *h)));
         }
+        if self.layers {
+            for layer in ["direct", "indirect"] {
+                for c in ["B", "G", "R"] {
+                    v.push((format!("{layer}.{c}"), true));
+                    v.push((format!("var.{layer}.{c}"), false));
+                }
+            }
+        }
         v.sort();
         v
     }
@@ -89,7 +100,13 @@ impl Synthetic {
         let s = self.sigma;
         let half_a = |c: usize| self.clean(x, y, c) + s * hash_noise(x, y, 2 * c as u64);
         let half_b = |c: usize| self.clean(x, y, c) + s * hash_noise(x, y, 2 * c as u64 + 1);
+        // Direct light is 60 % of the clean value, with 60 % of the noise.
+        let direct = |c: usize| 0.6 * (half_a(c) + half_b(c)) * 0.5;
         match name {
+            n if n.starts_with("direct.") => direct(c),
+            n if n.starts_with("indirect.") => (half_a(c) + half_b(c)) * 0.5 - direct(c),
+            n if n.starts_with("var.direct.") => 0.36 * s * s / 2.0,
+            n if n.starts_with("var.indirect.") => 0.16 * s * s / 2.0,
             n if n.starts_with("A.") => half_a(c),
             n if n.starts_with("B.") => half_b(c),
             n if n.starts_with("var.") => s * s / 2.0,

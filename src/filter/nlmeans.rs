@@ -14,7 +14,7 @@ use crate::geom::Rect;
 use crate::image::Plane;
 
 /// Block size of the internal schedule (does not change values).
-const BLOCK_W: usize = 128;
+const BLOCK_W: usize = 256;
 const BLOCK_H: usize = 32;
 
 /// Parameters of one NL-means pass.
@@ -229,13 +229,27 @@ fn filter_block_body(
                     column_sums(&h2, aw, rows, wr);
                     scale_by_count(wr, acc_rect.x0, valid, f, (b - a + 1) as f32);
                     let off = (y - block.y0) as usize * bw + (acc_rect.x0 - block.x0) as usize;
-                    for (d, w) in den[j][off..off + aw].iter_mut().zip(wr.iter()) {
-                        *d += *w;
-                    }
-                    for (c, u) in job.values.iter().enumerate() {
-                        let q = u.row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
-                        for ((n, w), v) in num[j][c][off..off + aw].iter_mut().zip(wr.iter()).zip(q) {
-                            *n += *w * *v;
+                    let span = off..off + aw;
+                    let q = |c: usize| job.values[c].row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
+                    if let [n0, n1, n2] = &mut num[j][..] {
+                        // The common case, in one pass: each weight is loaded once.
+                        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span.clone()]);
+                        let (q0, q1, q2, d) = (q(0), q(1), q(2), &mut den[j][span]);
+                        for i in 0..aw {
+                            let w = wr[i];
+                            d[i] += w;
+                            n0[i] += w * q0[i];
+                            n1[i] += w * q1[i];
+                            n2[i] += w * q2[i];
+                        }
+                    } else {
+                        for (d, w) in den[j][span.clone()].iter_mut().zip(wr.iter()) {
+                            *d += *w;
+                        }
+                        for (c, n) in num[j].iter_mut().enumerate() {
+                            for ((n, w), v) in n[span.clone()].iter_mut().zip(wr.iter()).zip(q(c)) {
+                                *n += *w * *v;
+                            }
                         }
                     }
                 }

@@ -14,7 +14,7 @@ fn frame_eight_times_the_limit_stays_within_it() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("big.exr");
     let frame = Rect::from_origin_size(0, 0, 1024, 8192);
-    let mut source = SyntheticSource::new(Synthetic { frame, features: false, sigma: 0.05 });
+    let mut source = SyntheticSource::new(Synthetic { frame, features: false, layers: false, sigma: 0.05 });
     let names = source.channel_names();
     let channels: Vec<SinkChannel> = names
         .iter()
