@@ -1,66 +1,74 @@
-//! Streaming engine vs whole-frame filtering on a 1920x1080 frame with
-//! colour, half buffers, variance and features (default parameters), both from
-//! memory (no file I/O): the cost of tiling. Run with
-//! `cargo bench --bench engine`; the halo recomputation factor is printed.
+//! End-to-end frame times from memory through the streaming engine (tiles of
+//! 256, halo recomputation included; no file I/O): 1080p, colour-only and the
+//! full default filter (albedo, normal and depth features, direct and
+//! indirect light layers), r = 10, f = 3, on 1 and 2 threads; and the
+//! whole-frame path for comparison. 4K runs are opt-in (each sample takes up
+//! to a minute): `NLDENOISE_BENCH_4K=1 cargo bench --bench engine`.
+//!
+//! `examples/timing.rs` measures the same thing as one CSV line per run, for
+//! the plots in docs/performance.md (`bash benches/scaling.sh`).
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nldenoise::api;
-use nldenoise::engine::synthetic::{Synthetic, SyntheticSource};
-use nldenoise::engine::{RowSource, StreamOptions, denoise_stream};
-use nldenoise::exrio::roles::{self, RoleOptions};
+use nldenoise::engine::synthetic::Synthetic;
+use nldenoise::engine::{StreamOptions, denoise_stream};
+use nldenoise::exrio::Frame;
+use nldenoise::exrio::roles::{self, RoleOptions, Selection};
 use nldenoise::exrio::stream::{FrameSource, NullSink};
-use nldenoise::exrio::{Channel, Frame};
 use nldenoise::filter::Params;
 use nldenoise::geom::Rect;
 
-fn frame_1080p() -> Frame {
-    let rect = Rect::from_origin_size(0, 0, 1920, 1080);
-    let mut src = SyntheticSource::new(Synthetic { frame: rect, features: true, layers: false, sigma: 0.05 });
-    let names = src.channel_names();
-    let all: Vec<usize> = (0..names.len()).collect();
-    let rows = src.read_rows(&all, rect).unwrap();
-    let channels = names
-        .iter()
-        .zip(rows)
-        .zip(src.is_half())
-        .map(|((n, r), h)| {
-            let v = r.samples.to_f32();
-            if h { Channel::from_f32_as_half(n.clone(), &v) } else { Channel::from_f32(n.clone(), v) }
-        })
-        .collect();
-    Frame::new(rect, channels)
+fn options(full: bool) -> RoleOptions {
+    if full {
+        RoleOptions { layers: Selection::Auto, ..RoleOptions::default() }
+    } else {
+        RoleOptions { features: Selection::None, ..RoleOptions::default() }
+    }
+}
+
+fn frame(w: usize, h: usize, full: bool) -> Frame {
+    Synthetic { frame: Rect::from_origin_size(0, 0, w, h), features: full, layers: full, sigma: 0.05 }.to_frame()
 }
 
 fn bench(c: &mut Criterion) {
-    let frame = frame_1080p();
     let params = Params::default();
-    let opts = RoleOptions::default();
-    let roles = roles::detect("bench".as_ref(), &frame.channel_names(), &opts).unwrap();
-    let stream_opts = StreamOptions { memory_limit: 4 << 30, ..StreamOptions::default() };
-    let mut g = c.benchmark_group("1080p_default_filter");
-    g.sample_size(10);
-    g.bench_function("whole_frame", |b| {
-        b.iter(|| {
-            let mut f = frame.clone();
-            api::denoise_frame(&mut f, "bench".as_ref(), &opts, &params, false).unwrap()
-        })
-    });
-    g.bench_function("streaming_tile_256", |b| {
-        b.iter(|| {
-            let mut sink = NullSink::default();
-            let report =
-                denoise_stream(&mut FrameSource::new(&frame), &mut sink, &roles, &params, &stream_opts).unwrap();
-            assert_eq!(sink.rows, 1080);
-            report.halo_overhead
-        })
-    });
-    g.finish();
-    let mut sink = NullSink::default();
-    let report = denoise_stream(&mut FrameSource::new(&frame), &mut sink, &roles, &params, &stream_opts).unwrap();
-    println!(
-        "halo recomputation: the tiles filter {:.3}x the frame's pixels (halo {} px, {} tiles)",
-        report.halo_overhead, report.halo, report.tiles
-    );
+    let offsets = ((2 * params.search_radius + 1) * (2 * params.search_radius + 1)) as u64;
+    let mut sizes = vec![("1080p", 1920, 1080)];
+    if std::env::var_os("NLDENOISE_BENCH_4K").is_some() {
+        sizes.push(("4k", 3840, 2160));
+    }
+    for (label, w, h) in sizes {
+        let mut g = c.benchmark_group(format!("{label}_r10_f3"));
+        g.sample_size(10);
+        // Elements are pixel-offsets: one search offset applied to one pixel.
+        g.throughput(Throughput::Elements((w * h) as u64 * offsets));
+        for full in [false, true] {
+            let frame = frame(w, h, full);
+            let opts = options(full);
+            let roles = roles::detect("bench".as_ref(), &frame.channel_names(), &opts).unwrap();
+            let mode = if full { "full_default_features_layers" } else { "colour_only" };
+            for threads in [1, 2] {
+                let stream = StreamOptions { threads, memory_limit: 8 << 30, ..StreamOptions::default() };
+                g.bench_function(format!("{mode}_streaming_{threads}thread"), |b| {
+                    b.iter(|| {
+                        let mut sink = NullSink::default();
+                        denoise_stream(&mut FrameSource::new(&frame), &mut sink, &roles, &params, &stream).unwrap();
+                        assert_eq!(sink.rows, h);
+                    })
+                });
+            }
+            if label == "1080p" {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+                g.bench_function(format!("{mode}_whole_frame_2thread"), |b| {
+                    b.iter(|| {
+                        let mut f = frame.clone();
+                        pool.install(|| api::denoise_frame(&mut f, "bench".as_ref(), &opts, &params, false).unwrap())
+                    })
+                });
+            }
+        }
+        g.finish();
+    }
 }
 
 criterion_group!(benches, bench);

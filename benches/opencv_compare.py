@@ -3,9 +3,12 @@
 
 Called by benches/opencv_compare.sh (which makes the venv). OpenCV gets the
 frame's R,G,B tone-mapped to 8 bits (x/(1+x), gamma 1/2.2), searchWindowSize=21,
-templateWindowSize=7 (the same r=10, f=3 as ours), the given thread count; we
-run `nldenoise denoise` on the EXR with the same thread count. The two are
-run alternately, ROUNDS times, and the medians and their ratio are printed.
+templateWindowSize=7 (the same r=10, f=3 as ours), the given thread count, from
+memory. Ours, with the same thread count: `nldenoise denoise --layers auto` on
+the EXR (the full default filter: albedo/normal/depth features and the direct
+and indirect light layers, file in and out), and the same frame's filter from
+memory (examples/timing: colour-only, and full). All are run alternately,
+ROUNDS times; the medians and the ratios to OpenCV are printed.
 """
 import statistics
 import subprocess
@@ -16,8 +19,8 @@ import cv2
 import numpy as np
 import OpenEXR
 
-exr, binary, threads, rounds = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
-extra = sys.argv[5:]
+exr, binary, threads, rounds, timing = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
+extra = sys.argv[6:] or ["--layers", "auto"]
 
 with OpenEXR.File(exr, separate_channels=True) as f:
     ch = f.channels()
@@ -26,7 +29,14 @@ img8 = np.clip(255.0 * (np.maximum(rgb, 0) / (1.0 + np.maximum(rgb, 0))) ** (1 /
 bgr8 = np.ascontiguousarray(img8[..., ::-1])
 cv2.setNumThreads(threads)
 
-ours, theirs = [], []
+
+
+def memory_run(mode):
+    out = subprocess.run([timing, mode, "1920", "1080", str(threads), "10", "1"], check=True, capture_output=True, text=True)
+    return float(out.stdout.strip().split(",")[5])
+
+
+ours, theirs, mem_colour, mem_full = [], [], [], []
 for _ in range(rounds):
     t = time.perf_counter()
     cv2.fastNlMeansDenoisingColored(bgr8, None, h=10, hColor=10, templateWindowSize=7, searchWindowSize=21)
@@ -34,10 +44,15 @@ for _ in range(rounds):
     t = time.perf_counter()
     subprocess.run([binary, "-q", "denoise", exr, "-o", "/tmp/opencv_compare_out.exr", "--threads", str(threads), *extra], check=True)
     ours.append(time.perf_counter() - t)
+    mem_colour.append(memory_run("colour"))
+    mem_full.append(memory_run("full"))
 
 h, w = rgb.shape[:2]
 mo, mt = statistics.median(ours), statistics.median(theirs)
 print(f"frame {w}x{h}, {threads} threads, {rounds} alternating rounds, OpenCV {cv2.__version__}")
 print(f"OpenCV fastNlMeansDenoisingColored (8-bit, r=10, f=3): median {mt:.2f} s  {['%.2f' % x for x in theirs]}")
 print(f"nldenoise denoise {' '.join(extra)} (f32, file in and out): median {mo:.2f} s  {['%.2f' % x for x in ours]}")
-print(f"ratio nldenoise / OpenCV: {mo / mt:.2f}")
+mc, mf = statistics.median(mem_colour), statistics.median(mem_full)
+print(f"nldenoise filter from memory, colour only: median {mc:.2f} s  {['%.2f' % x for x in mem_colour]}")
+print(f"nldenoise filter from memory, full default: median {mf:.2f} s  {['%.2f' % x for x in mem_full]}")
+print(f"ratio to OpenCV: file {mo / mt:.2f}, memory full {mf / mt:.2f}, memory colour-only {mc / mt:.2f}")

@@ -8,8 +8,8 @@ THREADS=${1:-2}; ROUNDS=${2:-3}; shift $(( $# > 2 ? 2 : $# )) || true
 venv=target/opencv-venv
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/pip" install -q opencv-python-headless numpy "openexr>=3.3"
-cargo build --release --bin nldenoise --example make_big_frame >/dev/null 2>&1
-frame=target/opencv-compare-1080p.exr
-[ -f "$frame" ] || ./target/release/examples/make_big_frame 1920 1080 "$frame" --features
+cargo build --release --bin nldenoise --example make_big_frame --example timing >/dev/null 2>&1
+frame=target/opencv-compare-1080p-layers.exr
+[ -f "$frame" ] || ./target/release/examples/make_big_frame 1920 1080 "$frame" --features --layers
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
-"$venv/bin/python" benches/opencv_compare.py "$frame" ./target/release/nldenoise "$THREADS" "$ROUNDS" "$@"
+"$venv/bin/python" benches/opencv_compare.py "$frame" ./target/release/nldenoise "$THREADS" "$ROUNDS" ./target/release/examples/timing "$@"

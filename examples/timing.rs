@@ -9,11 +9,10 @@
 
 use std::time::Instant;
 
-use nldenoise::engine::synthetic::{Synthetic, SyntheticSource};
-use nldenoise::engine::{RowSource, StreamOptions, denoise_stream};
+use nldenoise::engine::synthetic::Synthetic;
+use nldenoise::engine::{StreamOptions, denoise_stream};
 use nldenoise::exrio::roles::{self, RoleOptions, Selection};
 use nldenoise::exrio::stream::{FrameSource, NullSink};
-use nldenoise::exrio::{Channel, Frame};
 use nldenoise::filter::Params;
 use nldenoise::geom::Rect;
 
@@ -28,12 +27,7 @@ fn main() {
     let radius: usize = a.get(4).map_or(10, |s| s.parse().unwrap());
     let runs: usize = a.get(5).map_or(3, |s| s.parse().unwrap());
     let rect = Rect::from_origin_size(0, 0, w, h);
-    let mut src = SyntheticSource::new(Synthetic { frame: rect, features: full, layers: full, sigma: 0.05 });
-    let names = src.channel_names();
-    let all: Vec<usize> = (0..names.len()).collect();
-    let rows = src.read_rows(&all, rect).unwrap();
-    let channels = names.iter().zip(rows).map(|(n, r)| Channel::new(n.clone(), r.samples)).collect();
-    let frame = Frame::new(rect, channels);
+    let frame = Synthetic { frame: rect, features: full, layers: full, sigma: 0.05 }.to_frame();
     let opts = if full {
         RoleOptions { layers: Selection::Auto, ..RoleOptions::default() }
     } else {

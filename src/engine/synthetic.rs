@@ -78,6 +78,16 @@ impl Synthetic {
         v
     }
 
+    /// The whole frame in memory, every channel in its storage type.
+    pub fn to_frame(&self) -> crate::exrio::Frame {
+        let mut src = SyntheticSource::new(*self);
+        let names = src.channel_names();
+        let all: Vec<usize> = (0..names.len()).collect();
+        let rows = src.read_rows(&all, self.frame).expect("synthetic rows");
+        let channels = names.iter().zip(rows).map(|(n, r)| crate::exrio::Channel::new(n.clone(), r.samples)).collect();
+        crate::exrio::Frame::new(self.frame, channels)
+    }
+
     /// The noise-free value of colour channel `c` at a pixel.
     pub fn clean(&self, x: i64, y: i64, c: usize) -> f32 {
         let albedo = self.albedo(x, y, c);

@@ -1,0 +1,114 @@
+//! The machine's peak floating-point rate for the operations the filter uses
+//! (separate f32 multiply and add, no FMA), measured with independent chains
+//! `a = a * m + c` on 16 accumulators of one vector each: 2 flops per lane per
+//! step. Reported as elements/s = FLOP/s, per tier (AVX-512: 16 lanes, AVX2:
+//! 8 lanes, portable), on 1 and 2 threads. `cargo bench --bench peak`.
+//!
+//! docs/performance.md divides the filter's flop count by its time and by
+//! this peak.
+
+use std::hint::black_box;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+
+const ACC: usize = 16;
+const STEPS: usize = 2_000_000;
+
+#[inline(always)]
+fn chains<const L: usize>(steps: usize, seed: f32) -> f32 {
+    let mut a = [[seed; L]; ACC];
+    for (i, acc) in a.iter_mut().enumerate() {
+        acc.iter_mut().enumerate().for_each(|(l, v)| *v += (i * L + l) as f32 * 1e-3);
+    }
+    let m = black_box([0.999_999_9f32; L]);
+    let c = black_box([1e-7f32; L]);
+    for _ in 0..steps {
+        for acc in a.iter_mut() {
+            for l in 0..L {
+                acc[l] = acc[l] * m[l] + c[l];
+            }
+        }
+    }
+    a.iter().flatten().sum()
+}
+
+// Explicit intrinsics for the vector tiers: the compiler must not be trusted
+// to keep 16 accumulators in registers through a generic loop.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn chains_avx512(steps: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let m = _mm512_set1_ps(black_box(0.999_999_9));
+    let c = _mm512_set1_ps(black_box(1e-7));
+    let mut a: [__m512; ACC] = std::array::from_fn(|i| _mm512_set1_ps(1.0 + i as f32 * 1e-3));
+    for _ in 0..steps {
+        for v in a.iter_mut() {
+            *v = _mm512_add_ps(_mm512_mul_ps(*v, m), c);
+        }
+    }
+    let mut out = [0.0f32; 16];
+    let sum = a.iter().fold(_mm512_setzero_ps(), |s, v| _mm512_add_ps(s, *v));
+    // SAFETY: `out` holds 16 floats.
+    unsafe { _mm512_storeu_ps(out.as_mut_ptr(), sum) };
+    out.iter().sum()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn chains_avx2(steps: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let m = _mm256_set1_ps(black_box(0.999_999_9));
+    let c = _mm256_set1_ps(black_box(1e-7));
+    let mut a: [__m256; ACC] = std::array::from_fn(|i| _mm256_set1_ps(1.0 + i as f32 * 1e-3));
+    for _ in 0..steps {
+        for v in a.iter_mut() {
+            *v = _mm256_add_ps(_mm256_mul_ps(*v, m), c);
+        }
+    }
+    let mut out = [0.0f32; 8];
+    let sum = a.iter().fold(_mm256_setzero_ps(), |s, v| _mm256_add_ps(s, *v));
+    // SAFETY: `out` holds 8 floats.
+    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), sum) };
+    out.iter().sum()
+}
+
+fn portable(steps: usize) -> f32 {
+    chains::<4>(steps, 1.0)
+}
+
+/// A chain runner: steps in, a checksum out.
+type Chains = fn(usize) -> f32;
+
+fn on_threads(threads: usize, f: Chains) -> f32 {
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(move || f(black_box(STEPS)))).collect();
+        handles.into_iter().map(|h| h.join().unwrap()).sum()
+    })
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("peak_mul_add_f32");
+    g.sample_size(10);
+    let mut tiers: Vec<(&str, usize, Chains)> = vec![("portable_4", 4, portable)];
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: called only when the CPU has AVX2.
+            tiers.push(("avx2_8", 8, |n| unsafe { chains_avx2(n) }));
+        }
+        if std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: called only when the CPU has AVX-512F.
+            tiers.push(("avx512_16", 16, |n| unsafe { chains_avx512(n) }));
+        }
+    }
+    for (name, lanes, f) in tiers {
+        for threads in [1usize, 2] {
+            g.throughput(Throughput::Elements((2 * ACC * lanes * STEPS * threads) as u64));
+            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
