@@ -277,7 +277,8 @@ fn a_full_disk_leaves_no_output_and_names_the_path() {
 /// Start a slow denoise and signal it once its temporary output exists.
 fn kill_mid_frame(signal: i32) -> (tempfile::TempDir, PathBuf, std::process::ExitStatus) {
     let dir = tempfile::tempdir().unwrap();
-    let input = write(dir.path(), "in.exr", &small_frame(400, 300, &[]));
+    // Large enough (several seconds of filtering) that the run cannot end before the signal.
+    let input = write(dir.path(), "in.exr", &small_frame(800, 600, &[]));
     let out = dir.path().join("out.exr");
     let mut child = Command::new(exe())
         .args(["denoise".as_ref(), input.as_os_str(), "-o".as_ref(), out.as_os_str()])
@@ -297,7 +298,9 @@ fn kill_mid_frame(signal: i32) -> (tempfile::TempDir, PathBuf, std::process::Exi
         assert!(child.try_wait().unwrap().is_none(), "finished before it could be killed");
         std::thread::sleep(Duration::from_millis(5));
     }
-    std::thread::sleep(Duration::from_millis(200));
+    std::thread::sleep(Duration::from_millis(100));
+    assert!(child.try_wait().unwrap().is_none(), "finished before it could be killed");
+    // SAFETY: plain kill(2) of our own child.
     unsafe { libc::kill(child.id() as i32, signal) };
     let status = child.wait().unwrap();
     assert!(!out.exists(), "a partial output appeared at the output path");
