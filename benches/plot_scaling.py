@@ -28,27 +28,34 @@ def series(mode, key, **fixed):
     return sorted(best.items())
 
 
-fig, ax = plt.subplots(figsize=(6, 4))
-for mode in ("colour", "full"):
-    pts = series(mode, lambda r: int(r["width"]) * int(r["height"]) / 1e6, threads=2, radius=10)
-    ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label[mode])
-ax.set_xlabel("frame size (megapixels)")
-ax.set_ylabel("seconds (2 threads, r=10, f=3)")
-ax.set_title("nldenoise: time vs frame size (from memory)")
-ax.grid(True, alpha=0.3)
-ax.legend()
-fig.tight_layout()
-fig.savefig(out / "time_vs_size.png", dpi=110)
+def plot(name, key, fixed, xlabel, ylabel, title):
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for mode in ("colour", "full"):
+        pts = series(mode, key, **fixed)
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label[mode])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
 
-fig, ax = plt.subplots(figsize=(6, 4))
-for mode in ("colour", "full"):
-    pts = series(mode, lambda r: int(r["radius"]), threads=2, width=960, height=540)
-    ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label[mode])
-ax.set_xlabel("search radius r (window (2r+1)^2)")
-ax.set_ylabel("seconds (960x540, 2 threads, f=3)")
-ax.set_title("nldenoise: time vs search radius")
-ax.grid(True, alpha=0.3)
-ax.legend()
-fig.tight_layout()
-fig.savefig(out / "time_vs_radius.png", dpi=110)
+
+plot(
+    "time_vs_size.png",
+    lambda r: int(r["width"]) * int(r["height"]) / 1e6,
+    dict(threads=2, radius=10),
+    "frame size (megapixels)",
+    "seconds (2 threads, r=10, f=3)",
+    "nldenoise: time vs frame size (from memory)",
+)
+plot(
+    "time_vs_radius.png",
+    lambda r: int(r["radius"]),
+    dict(threads=2, width=960, height=540),
+    "search radius r (window (2r+1)^2)",
+    "seconds (960x540, 2 threads, f=3)",
+    "nldenoise: time vs search radius",
+)
 print("plots written to", out)
