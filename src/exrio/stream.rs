@@ -61,7 +61,7 @@ impl std::ops::Deref for FileBytes {
 /// A memory-mapped EXR file read row window by row window.
 pub struct ExrSource {
     path: PathBuf,
-    mmap: FileBytes,
+    bytes: FileBytes,
     header: Header,
     data_window: Rect,
     names: Vec<String>,
@@ -87,18 +87,18 @@ impl ExrSource {
         ExrSource::with_bytes(name, FileBytes::Owned(bytes))
     }
 
-    fn with_bytes(path: &Path, mmap: FileBytes) -> Result<ExrSource, Error> {
-        let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&mmap[..]), false)
+    fn with_bytes(path: &Path, bytes: FileBytes) -> Result<ExrSource, Error> {
+        let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&bytes[..]), false)
             .map_err(|e| exr_err(path, format!("not a readable EXR file: {e}")))?;
-        let header = super::check_supported(path, &meta, mmap.len() as u64)?;
-        check_offset_table(path, &mmap, header.chunk_count)?;
+        let header = super::check_supported(path, &meta, bytes.len() as u64)?;
+        check_offset_table(path, &bytes, header.chunk_count)?;
         let pos = header.own_attributes.layer_position;
         let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, header.layer_size.0, header.layer_size.1);
         let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
         let kinds = header.channels.list.iter().map(|c| kind_of(c.sample_type)).collect();
         Ok(ExrSource {
             path: path.to_path_buf(),
-            mmap,
+            bytes,
             header,
             data_window,
             names,
@@ -179,7 +179,7 @@ impl ExrSource {
             let x0 = dw.x0 + block.pixel_position.0 as i64;
             block.level == Vec2(0, 0) && y1 > rows.y0 && y0 < rows.y1 && !cached.contains(&(y0, x0))
         };
-        let reader = exr::block::read(Cursor::new(&self.mmap[..]), false).map_err(|e| exr_err(&self.path, e))?;
+        let reader = exr::block::read(Cursor::new(&self.bytes[..]), false).map_err(|e| exr_err(&self.path, e))?;
         let filtered = reader
             .filter_chunks(false, |_, _, block| wanted(&block))
             .map_err(|e| exr_err(&self.path, format!("bad offset table: {e}")))?;
@@ -203,10 +203,10 @@ impl ExrSource {
         }
         // Compressed pages already decoded need not stay resident: drop them from
         // this process's mapping (they are re-read from the file if touched again).
-        // SAFETY: the mapping is read-only and file-backed; MADV_DONTNEED only
-        // discards our view of clean pages, and no slice of the map is alive here.
         #[cfg(unix)]
-        if let FileBytes::Mapped(m) = &self.mmap {
+        if let FileBytes::Mapped(m) = &self.bytes {
+            // SAFETY: the mapping is read-only and file-backed; MADV_DONTNEED only
+            // discards our view of clean pages, and no slice of the map is alive here.
             unsafe {
                 let _ = m.unchecked_advise(memmap2::UncheckedAdvice::DontNeed);
             }
