@@ -15,7 +15,7 @@ use crate::image::Plane;
 
 /// Block size of the internal schedule (does not change values).
 const BLOCK_W: usize = 256;
-const BLOCK_H: usize = 32;
+const BLOCK_H: usize = 64;
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
@@ -157,8 +157,11 @@ fn filter_block_body(
 
     let outer = block.expand(2 * s.patch_radius);
     let mid = block.expand(s.patch_radius);
-    let mut h1 = vec![0.0f32; mid.width() * outer.height()];
-    let mut h2 = vec![0.0f32; bw * mid.height()];
+    // Ring buffers of the last 2f + 1 rows of horizontal sums: a vertical
+    // window never reaches further back, and the rings stay in L1.
+    let cap = 2 * s.patch_radius + 1;
+    let mut h1 = vec![0.0f32; mid.width() * cap];
+    let mut h2 = vec![0.0f32; bw * cap];
     let mut drow = vec![0.0f32; outer.width()];
     let mut wrow = vec![0.0f32; mid.width()];
     let mut wfeat = vec![0.0f32; mid.area()];
@@ -180,18 +183,23 @@ fn filter_block_body(
             }
 
             for (j, job) in jobs.iter().enumerate() {
-                // 1. Distance rows and their horizontal sums.
+                // The three passes run interleaved, row by row: each weight row
+                // as soon as its window of distance rows is complete, each
+                // accumulated row as soon as its window of weight rows is.
                 let inv_c = 1.0 / job.values.len() as f32;
-                for (ri, y) in (d_rect.y0..d_rect.y1).enumerate() {
+                let (mut next_w, mut next_a) = (w_rect.y0, acc_rect.y0);
+                let last_row = |y: i64| (y + f).min(valid.y1 - 1);
+                for yd in d_rect.y0..d_rect.y1 {
+                    // 1. A distance row and its horizontal sums.
                     let d = &mut drow[..dw];
                     d.fill(0.0);
                     for (u, v) in job.values.iter().zip(&job.variance) {
                         accumulate_colour_distance(
                             d,
-                            u.row(y, d_rect.x0, d_rect.x1),
-                            u.row(y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            v.row(y, d_rect.x0, d_rect.x1),
-                            v.row(y + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            u.row(yd, d_rect.x0, d_rect.x1),
+                            u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            v.row(yd, d_rect.x0, d_rect.x1),
+                            v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
                             s.alpha,
                             s.eps,
                             k2,
@@ -200,59 +208,42 @@ fn filter_block_body(
                     for a in d.iter_mut() {
                         *a *= inv_c;
                     }
-                    window_sums_row(d, d_rect.x0, valid, f, w_rect.x0, &mut h1[ri * ww..(ri + 1) * ww]);
-                }
-                // 2. Patch distances, weights, and their horizontal sums.
-                for (ri, y) in (w_rect.y0..w_rect.y1).enumerate() {
-                    let (a, b) = ((y - f).max(valid.y0), (y + f).min(valid.y1 - 1));
-                    let rows = (a - d_rect.y0) as usize..(b - d_rect.y0 + 1) as usize;
-                    let wr = &mut wrow[..ww];
-                    column_sums(&h1, ww, rows, wr);
-                    scale_by_count(wr, w_rect.x0, valid, f, (b - a + 1) as f32);
-                    if features.is_empty() {
-                        for v in wr.iter_mut() {
-                            *v = exp_neg_clamped(*v);
-                        }
-                    } else {
-                        for (v, wf) in wr.iter_mut().zip(&wfeat[ri * ww..(ri + 1) * ww]) {
-                            let wc = exp_neg_clamped(*v);
-                            *v = if *wf < wc { *wf } else { wc };
-                        }
-                    }
-                    window_sums_row(wr, w_rect.x0, valid, f, acc_rect.x0, &mut h2[ri * aw..(ri + 1) * aw]);
-                }
-                // 3. Mean weights, accumulated.
-                for y in acc_rect.y0..acc_rect.y1 {
-                    let (a, b) = ((y - f).max(valid.y0), (y + f).min(valid.y1 - 1));
-                    let rows = (a - w_rect.y0) as usize..(b - w_rect.y0 + 1) as usize;
-                    let wr = &mut wrow[..aw];
-                    column_sums(&h2, aw, rows, wr);
-                    scale_by_count(wr, acc_rect.x0, valid, f, (b - a + 1) as f32);
-                    let off = (y - block.y0) as usize * bw + (acc_rect.x0 - block.x0) as usize;
-                    let span = off..off + aw;
-                    let q = |c: usize| job.values[c].row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
-                    if let [n0, n1, n2] = &mut num[j][..] {
-                        // The common case, in one pass: each weight is loaded once.
-                        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span.clone()]);
-                        let (q0, q1, q2, d) = (q(0), q(1), q(2), &mut den[j][span]);
-                        for i in 0..aw {
-                            let w = wr[i];
-                            d[i] += w;
-                            n0[i] += w * q0[i];
-                            n1[i] += w * q1[i];
-                            n2[i] += w * q2[i];
-                        }
-                    } else {
-                        for (d, w) in den[j][span.clone()].iter_mut().zip(wr.iter()) {
-                            *d += *w;
-                        }
-                        for (c, n) in num[j].iter_mut().enumerate() {
-                            for ((n, w), v) in n[span.clone()].iter_mut().zip(wr.iter()).zip(q(c)) {
-                                *n += *w * *v;
+                    let slot = (yd - d_rect.y0) as usize % cap;
+                    window_sums_row(d, d_rect.x0, valid, f, w_rect.x0, &mut h1[slot * ww..(slot + 1) * ww]);
+                    // 2. Patch distances, weights, and their horizontal sums.
+                    while next_w < w_rect.y1 && last_row(next_w) <= yd {
+                        let y = next_w;
+                        next_w += 1;
+                        let (a, b) = ((y - f).max(valid.y0), last_row(y));
+                        let wr = &mut wrow[..ww];
+                        ring_column_sums(&h1, ww, cap, (a - d_rect.y0) as usize, (b - a + 1) as usize, wr);
+                        scale_by_count(wr, w_rect.x0, valid, f, (b - a + 1) as f32);
+                        if features.is_empty() {
+                            for v in wr.iter_mut() {
+                                *v = exp_neg_clamped(*v);
+                            }
+                        } else {
+                            let ri = (y - w_rect.y0) as usize;
+                            for (v, wf) in wr.iter_mut().zip(&wfeat[ri * ww..(ri + 1) * ww]) {
+                                let wc = exp_neg_clamped(*v);
+                                *v = if *wf < wc { *wf } else { wc };
                             }
                         }
+                        let slot = (y - w_rect.y0) as usize % cap;
+                        window_sums_row(wr, w_rect.x0, valid, f, acc_rect.x0, &mut h2[slot * aw..(slot + 1) * aw]);
+                        // 3. Mean weights, accumulated.
+                        while next_a < acc_rect.y1 && last_row(next_a) <= y {
+                            let ya = next_a;
+                            next_a += 1;
+                            let (a, b) = ((ya - f).max(valid.y0), last_row(ya));
+                            let wr = &mut wrow[..aw];
+                            ring_column_sums(&h2, aw, cap, (a - w_rect.y0) as usize, (b - a + 1) as usize, wr);
+                            scale_by_count(wr, acc_rect.x0, valid, f, (b - a + 1) as f32);
+                            accumulate(&mut num[j], &mut den[j], &job.values, wr, (ya, dx, dy), acc_rect, block);
+                        }
                     }
                 }
+                debug_assert!(next_w == w_rect.y1 && next_a == acc_rect.y1);
             }
         }
     }
@@ -328,22 +319,64 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
     }
 }
 
-/// `out = rows[first] + rows[first + 1] + ...` (rows of width `w` stored
-/// contiguously in `src`), in increasing row order.
+/// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
+/// order), where row `k` of width `w` is stored in slot `k % cap` of `ring`.
 #[inline(always)]
-fn column_sums(src: &[f32], w: usize, rows: std::ops::Range<usize>, out: &mut [f32]) {
-    let row = |k: usize| &src[k * w..(k + 1) * w];
-    match rows.len() {
-        3 => rows_sum::<3>(std::array::from_fn(|k| row(rows.start + k)), out),
-        5 => rows_sum::<5>(std::array::from_fn(|k| row(rows.start + k)), out),
-        7 => rows_sum::<7>(std::array::from_fn(|k| row(rows.start + k)), out),
-        9 => rows_sum::<9>(std::array::from_fn(|k| row(rows.start + k)), out),
+fn ring_column_sums(ring: &[f32], w: usize, cap: usize, first: usize, count: usize, out: &mut [f32]) {
+    let row = |i: usize| {
+        let slot = (first + i) % cap;
+        &ring[slot * w..(slot + 1) * w]
+    };
+    match count {
+        3 => rows_sum::<3>(std::array::from_fn(row), out),
+        5 => rows_sum::<5>(std::array::from_fn(row), out),
+        7 => rows_sum::<7>(std::array::from_fn(row), out),
+        9 => rows_sum::<9>(std::array::from_fn(row), out),
         _ => {
-            out.copy_from_slice(row(rows.start));
-            for k in rows.start + 1..rows.end {
-                for (o, v) in out.iter_mut().zip(row(k)) {
+            out.copy_from_slice(row(0));
+            for i in 1..count {
+                for (o, v) in out.iter_mut().zip(row(i)) {
                     *o += *v;
                 }
+            }
+        }
+    }
+}
+
+/// Accumulate one row of mean weights `wr` (row `y` of `acc_rect`, offset
+/// `(dx, dy)`) into the block's numerators and denominator.
+#[inline(always)]
+fn accumulate(
+    num: &mut [Vec<f32>],
+    den: &mut [f32],
+    values: &[&Plane],
+    wr: &[f32],
+    (y, dx, dy): (i64, i64, i64),
+    acc_rect: Rect,
+    block: Rect,
+) {
+    let aw = acc_rect.width();
+    let off = (y - block.y0) as usize * block.width() + (acc_rect.x0 - block.x0) as usize;
+    let span = off..off + aw;
+    let q = |c: usize| values[c].row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
+    if let [n0, n1, n2] = num {
+        // The common case, in one pass: each weight is loaded once.
+        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span.clone()]);
+        let (q0, q1, q2, d) = (q(0), q(1), q(2), &mut den[span]);
+        for i in 0..aw {
+            let w = wr[i];
+            d[i] += w;
+            n0[i] += w * q0[i];
+            n1[i] += w * q1[i];
+            n2[i] += w * q2[i];
+        }
+    } else {
+        for (d, w) in den[span.clone()].iter_mut().zip(wr.iter()) {
+            *d += *w;
+        }
+        for (c, n) in num.iter_mut().enumerate() {
+            for ((n, w), v) in n[span.clone()].iter_mut().zip(wr.iter()).zip(q(c)) {
+                *n += *w * *v;
             }
         }
     }
