@@ -124,16 +124,21 @@ tier_wrapper!(filter_block_avx512, "avx512f");
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
 ///
-/// For each offset, three passes over the block, each fused so that no
-/// block-sized intermediate is written and read back more than once:
+/// For each offset, three passes over the block, interleaved row by row so
+/// that no block-sized intermediate exists:
 ///
 /// 1. per row of `d_rect`: the per-pixel distance into a row buffer, then its
-///    horizontal window sums into `h1` (columns of `w_rect`);
-/// 2. per row of `w_rect`: the vertical sum of `h1` rows, scaled by the
-///    window's `1 / count` (the patch distance), the weight, then its
-///    horizontal window sums into `h2` (columns of `acc_rect`);
-/// 3. per row of `acc_rect`: the vertical sum of `h2` rows, scaled (the mean
-///    weight), accumulated into the numerators and the denominator.
+///    horizontal window sums into the ring `h1` (columns of `w_rect`);
+/// 2. per row of `w_rect`, as soon as its window of `h1` rows is complete: the
+///    vertical sum, scaled by the window's `1 / count` (the patch distance),
+///    the weight, then its horizontal window sums into the ring `h2`
+///    (columns of `acc_rect`);
+/// 3. per row of `acc_rect`, as soon as its window of `h2` rows is complete:
+///    the vertical sum, scaled (the mean weight), accumulated into the
+///    numerators and the denominator.
+///
+/// A vertical window never reaches more than `2f` rows back, so each ring
+/// holds `2f + 1` rows and stays in L1.
 ///
 /// Every window sum starts from its first sample and adds the others in
 /// increasing frame coordinate, over the window clipped to the offset's valid
