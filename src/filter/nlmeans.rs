@@ -219,10 +219,8 @@ fn filter_block_body(
                     while next_w < w_rect.y1 && last_row(next_w) <= yd {
                         let y = next_w;
                         next_w += 1;
-                        let (a, b) = ((y - f).max(valid.y0), last_row(y));
                         let wr = &mut wrow[..ww];
-                        ring_column_sums(&h1, ww, cap, (a - d_rect.y0) as usize, (b - a + 1) as usize, wr);
-                        scale_by_count(wr, w_rect.x0, valid, f, (b - a + 1) as f32);
+                        vertical_means(&h1, cap, d_rect.y0, y, valid, f, w_rect.x0, wr);
                         if features.is_empty() {
                             for v in wr.iter_mut() {
                                 *v = exp_neg_clamped(*v);
@@ -240,10 +238,8 @@ fn filter_block_body(
                         while next_a < acc_rect.y1 && last_row(next_a) <= y {
                             let ya = next_a;
                             next_a += 1;
-                            let (a, b) = ((ya - f).max(valid.y0), last_row(ya));
                             let wr = &mut wrow[..aw];
-                            ring_column_sums(&h2, aw, cap, (a - w_rect.y0) as usize, (b - a + 1) as usize, wr);
-                            scale_by_count(wr, acc_rect.x0, valid, f, (b - a + 1) as f32);
+                            vertical_means(&h2, cap, w_rect.y0, ya, valid, f, acc_rect.x0, wr);
                             accumulate(&mut num[j], &mut den[j], &job.values, wr, (ya, dx, dy), acc_rect, block);
                         }
                     }
@@ -322,6 +318,17 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
         }
         *o = acc;
     }
+}
+
+/// Window means of row `y`: the vertical sums of the ring's rows over
+/// `[y - f, y + f] ∩ clip` (row `k` of the ring is frame row `ring_y0 + k`),
+/// scaled by `1 / count` of each clipped window (columns from `x0`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn vertical_means(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, x0: i64, out: &mut [f32]) {
+    let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
+    ring_column_sums(ring, out.len(), cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
+    scale_by_count(out, x0, clip, f, (b - a + 1) as f32);
 }
 
 /// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
