@@ -19,6 +19,9 @@ pub struct Rect {
 }
 
 impl Rect {
+    /// The empty rectangle at the origin.
+    pub const EMPTY: Rect = Rect { x0: 0, y0: 0, x1: 0, y1: 0 };
+
     /// A rectangle from its origin and size.
     pub fn from_origin_size(x: i64, y: i64, width: usize, height: usize) -> Rect {
         Rect { x0: x, y0: y, x1: x + width as i64, y1: y + height as i64 }

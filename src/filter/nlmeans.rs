@@ -156,35 +156,52 @@ fn filter_block_body(
     let f = s.patch_radius as i64;
     let k2 = s.strength * s.strength;
     let area = block.area();
-    let bw = block.width();
     let mut num: Vec<Vec<Vec<f32>>> = jobs.iter().map(|j| vec![vec![0.0f32; area]; j.values.len()]).collect();
     let mut den: Vec<Vec<f32>> = jobs.iter().map(|_| vec![0.0f32; area]).collect();
 
     let outer = block.expand(2 * s.patch_radius);
     let mid = block.expand(s.patch_radius);
     // Ring buffers of the last 2f + 1 rows of horizontal sums: a vertical
-    // window never reaches further back, and the rings stay in L1.
+    // window never reaches further back.
     let cap = 2 * s.patch_radius + 1;
-    let mut h1 = vec![0.0f32; mid.width() * cap];
-    let mut h2 = vec![0.0f32; bw * cap];
+    let mut lanes: Vec<LaneBuffers> = (0..GROUP_MAX)
+        .map(|_| LaneBuffers {
+            h1: vec![0.0f32; mid.width() * cap],
+            h2: vec![0.0f32; block.width() * cap],
+            mean_w: vec![0.0f32; block.width()],
+            wfeat: if features.is_empty() { Vec::new() } else { vec![0.0f32; mid.area()] },
+        })
+        .collect();
     let mut drow = vec![0.0f32; outer.width()];
     let mut wrow = vec![0.0f32; mid.width()];
-    let mut wfeat = vec![0.0f32; mid.area()];
     let mut phi = Vec::with_capacity(mid.width());
 
     for dy in -r..=r {
-        for dx in -r..=r {
-            let valid = frame.valid_for_offset(dx, dy);
-            let acc_rect = block.intersect(&valid);
-            if acc_rect.is_empty() {
-                continue;
+        for dxs in offset_groups(r) {
+            // The offsets of a group share `dy`, hence every row range: their
+            // passes run in lock step and their mean weights are accumulated
+            // in one pass over the block's numerators and denominator.
+            let mut group = [Lane::EMPTY; GROUP_MAX];
+            let mut g = 0;
+            for dx in dxs {
+                let valid = frame.valid_for_offset(dx, dy);
+                let acc = block.intersect(&valid);
+                if !acc.is_empty() {
+                    group[g] = Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc };
+                    g += 1;
+                }
             }
-            let w_rect = mid.intersect(&valid);
-            let d_rect = outer.intersect(&valid);
-            let (dw, ww, aw) = (d_rect.width(), w_rect.width(), acc_rect.width());
+            let group = &group[..g];
+            let Some(first) = group.first() else { continue };
+            // Row ranges, equal for every lane of the group.
+            let (d_y, w_y, a_y, valid_y1) =
+                ((first.d.y0, first.d.y1), (first.w.y0, first.w.y1), (first.acc.y0, first.acc.y1), first.valid.y1);
+            let last_row = |y: i64| (y + f).min(valid_y1 - 1);
 
             if !features.is_empty() {
-                feature_weights(features, w_rect, dx, dy, &mut wfeat[..w_rect.area()], &mut phi);
+                for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
+                    feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+                }
             }
 
             for (j, job) in jobs.iter().enumerate() {
@@ -192,59 +209,95 @@ fn filter_block_body(
                 // as soon as its window of distance rows is complete, each
                 // accumulated row as soon as its window of weight rows is.
                 let inv_c = 1.0 / job.values.len() as f32;
-                let (mut next_w, mut next_a) = (w_rect.y0, acc_rect.y0);
-                let last_row = |y: i64| (y + f).min(valid.y1 - 1);
-                for yd in d_rect.y0..d_rect.y1 {
-                    // 1. A distance row and its horizontal sums.
-                    let d = &mut drow[..dw];
-                    d.fill(0.0);
-                    for (u, v) in job.values.iter().zip(&job.variance) {
-                        accumulate_colour_distance(
+                let (mut next_w, mut next_a) = (w_y.0, a_y.0);
+                for yd in d_y.0..d_y.1 {
+                    for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
+                        // 1. A distance row and its horizontal sums.
+                        let (d_rect, dx) = (lane.d, lane.dx);
+                        let d = &mut drow[..d_rect.width()];
+                        d.fill(0.0);
+                        for (u, v) in job.values.iter().zip(&job.variance) {
+                            accumulate_colour_distance(
+                                d,
+                                u.row(yd, d_rect.x0, d_rect.x1),
+                                u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                                v.row(yd, d_rect.x0, d_rect.x1),
+                                v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                                s.alpha,
+                                s.eps,
+                                k2,
+                            );
+                        }
+                        for a in d.iter_mut() {
+                            *a *= inv_c;
+                        }
+                        let (slot, ww) = ((yd - d_y.0) as usize % cap, lane.w.width());
+                        window_sums_row(
                             d,
-                            u.row(yd, d_rect.x0, d_rect.x1),
-                            u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            v.row(yd, d_rect.x0, d_rect.x1),
-                            v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            s.alpha,
-                            s.eps,
-                            k2,
+                            d_rect.x0,
+                            lane.valid,
+                            f,
+                            lane.w.x0,
+                            &mut buf.h1[slot * ww..(slot + 1) * ww],
                         );
                     }
-                    for a in d.iter_mut() {
-                        *a *= inv_c;
-                    }
-                    let slot = (yd - d_rect.y0) as usize % cap;
-                    window_sums_row(d, d_rect.x0, valid, f, w_rect.x0, &mut h1[slot * ww..(slot + 1) * ww]);
                     // 2. Patch distances, weights, and their horizontal sums.
-                    while next_w < w_rect.y1 && last_row(next_w) <= yd {
+                    while next_w < w_y.1 && last_row(next_w) <= yd {
                         let y = next_w;
                         next_w += 1;
-                        let wr = &mut wrow[..ww];
-                        vertical_means(&h1, cap, d_rect.y0, y, valid, f, w_rect.x0, wr);
-                        if features.is_empty() {
-                            for v in wr.iter_mut() {
-                                *v = exp_neg_clamped(*v);
+                        for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
+                            let ww = lane.w.width();
+                            let wr = &mut wrow[..ww];
+                            vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, wr);
+                            if features.is_empty() {
+                                for v in wr.iter_mut() {
+                                    *v = exp_neg_clamped(*v);
+                                }
+                            } else {
+                                let ri = (y - w_y.0) as usize;
+                                for (v, wf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
+                                    let wc = exp_neg_clamped(*v);
+                                    *v = if *wf < wc { *wf } else { wc };
+                                }
                             }
-                        } else {
-                            let ri = (y - w_rect.y0) as usize;
-                            for (v, wf) in wr.iter_mut().zip(&wfeat[ri * ww..(ri + 1) * ww]) {
-                                let wc = exp_neg_clamped(*v);
-                                *v = if *wf < wc { *wf } else { wc };
-                            }
+                            let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
+                            window_sums_row(
+                                wr,
+                                lane.w.x0,
+                                lane.valid,
+                                f,
+                                lane.acc.x0,
+                                &mut buf.h2[slot * aw..(slot + 1) * aw],
+                            );
                         }
-                        let slot = (y - w_rect.y0) as usize % cap;
-                        window_sums_row(wr, w_rect.x0, valid, f, acc_rect.x0, &mut h2[slot * aw..(slot + 1) * aw]);
-                        // 3. Mean weights, accumulated.
-                        while next_a < acc_rect.y1 && last_row(next_a) <= y {
+                        // 3. Mean weights of every lane, accumulated in one pass.
+                        while next_a < a_y.1 && last_row(next_a) <= y {
                             let ya = next_a;
                             next_a += 1;
-                            let wr = &mut wrow[..aw];
-                            vertical_means(&h2, cap, w_rect.y0, ya, valid, f, acc_rect.x0, wr);
-                            accumulate(&mut num[j], &mut den[j], &job.values, wr, (ya, dx, dy), acc_rect, block);
+                            for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
+                                let aw = lane.acc.width();
+                                vertical_means(
+                                    &buf.h2,
+                                    cap,
+                                    w_y.0,
+                                    ya,
+                                    lane.valid,
+                                    f,
+                                    lane.acc.x0,
+                                    &mut buf.mean_w[..aw],
+                                );
+                            }
+                            let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
+                                Some(lane) => {
+                                    LaneRow { w: &lanes[g].mean_w[..lane.acc.width()], x0: lane.acc.x0, dx: lane.dx }
+                                }
+                                None => LaneRow { w: &[], x0: 0, dx: 0 },
+                            });
+                            accumulate(&mut num[j], &mut den[j], &job.values, &rows[..group.len()], ya, dy, block);
                         }
                     }
                 }
-                debug_assert!(next_w == w_rect.y1 && next_a == acc_rect.y1);
+                debug_assert!(next_w == w_y.1 && next_a == a_y.1);
             }
         }
     }
@@ -263,6 +316,54 @@ fn filter_block_body(
                 .collect()
         })
         .collect()
+}
+
+/// The most search offsets filtered in lock step (one accumulation pass each).
+const GROUP_MAX: usize = 4;
+
+/// The horizontal offsets `-r..=r` cut into groups of at most [`GROUP_MAX`],
+/// as even as possible, in increasing order.
+fn offset_groups(r: i64) -> impl Iterator<Item = std::ops::Range<i64>> {
+    let n = 2 * r + 1;
+    let groups = (n + GROUP_MAX as i64 - 1) / GROUP_MAX as i64;
+    let (base, extra) = (n / groups, n % groups);
+    (0..groups).map(move |i| {
+        let start = -r + i * base + i.min(extra);
+        start..start + base + i64::from(i < extra)
+    })
+}
+
+/// One search offset of a group and the rectangles of its passes.
+#[derive(Clone, Copy)]
+struct Lane {
+    dx: i64,
+    /// Pixels `p` with `p` and `p + (dx, dy)` in the frame.
+    valid: Rect,
+    /// Where the per-pixel distance is needed.
+    d: Rect,
+    /// Where the weight is needed.
+    w: Rect,
+    /// Where the mean weight is accumulated.
+    acc: Rect,
+}
+
+impl Lane {
+    const EMPTY: Lane = Lane { dx: 0, valid: Rect::EMPTY, d: Rect::EMPTY, w: Rect::EMPTY, acc: Rect::EMPTY };
+}
+
+/// The working rows of one lane.
+struct LaneBuffers {
+    h1: Vec<f32>,
+    h2: Vec<f32>,
+    mean_w: Vec<f32>,
+    wfeat: Vec<f32>,
+}
+
+/// One lane's row of mean weights, for columns from `x0`.
+struct LaneRow<'a> {
+    w: &'a [f32],
+    x0: i64,
+    dx: i64,
 }
 
 /// Horizontal window sums of one row: `dst[x] = sum of src over
@@ -355,42 +456,113 @@ fn ring_column_sums(ring: &[f32], w: usize, cap: usize, first: usize, count: usi
     }
 }
 
-/// Accumulate one row of mean weights `wr` (row `y` of `acc_rect`, offset
-/// `(dx, dy)`) into the block's numerators and denominator.
+/// Accumulate one row `y` of mean weights of every lane of a group (offsets
+/// `(lane.dx, dy)`, in lane order) into the block's numerators and denominator.
+///
+/// Each numerator and the denominator receive the lanes' terms in lane order
+/// whichever loop handles the pixel, so the result equals accumulating the
+/// offsets one after the other.
 #[inline(always)]
 fn accumulate(
     num: &mut [Vec<f32>],
     den: &mut [f32],
     values: &[&Plane],
-    wr: &[f32],
-    (y, dx, dy): (i64, i64, i64),
-    acc_rect: Rect,
+    rows: &[LaneRow<'_>],
+    y: i64,
+    dy: i64,
     block: Rect,
 ) {
-    let aw = acc_rect.width();
-    let off = (y - block.y0) as usize * block.width() + (acc_rect.x0 - block.x0) as usize;
-    let span = off..off + aw;
-    let q = |c: usize| values[c].row(y + dy, acc_rect.x0 + dx, acc_rect.x1 + dx);
-    if let [n0, n1, n2] = num {
-        // The common case, in one pass: each weight is loaded once.
-        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span.clone()]);
-        let (q0, q1, q2, d) = (q(0), q(1), q(2), &mut den[span]);
-        for i in 0..aw {
-            let w = wr[i];
-            d[i] += w;
-            n0[i] += w * q0[i];
-            n1[i] += w * q1[i];
-            n2[i] += w * q2[i];
-        }
-    } else {
-        for (d, w) in den[span.clone()].iter_mut().zip(wr.iter()) {
-            *d += *w;
-        }
-        for (c, n) in num.iter_mut().enumerate() {
-            for ((n, w), v) in n[span.clone()].iter_mut().zip(wr.iter()).zip(q(c)) {
-                *n += *w * *v;
+    let row_off = (y - block.y0) as usize * block.width();
+    let end = |l: &LaneRow<'_>| l.x0 + l.w.len() as i64;
+    // Columns every lane covers take the fused path; the others (next to the
+    // frame's edges) add each covering lane's terms in lane order.
+    let (c0, c1) = (rows.iter().map(|l| l.x0).max().unwrap_or(0), rows.iter().map(end).min().unwrap_or(0));
+    let (u0, u1) = (rows.iter().map(|l| l.x0).min().unwrap_or(0), rows.iter().map(end).max().unwrap_or(0));
+    let c1 = c1.max(c0);
+    for x in (u0..c0.min(u1)).chain(c1.max(u0)..u1) {
+        let i = row_off + (x - block.x0) as usize;
+        for l in rows.iter().filter(|l| l.x0 <= x && x < end(l)) {
+            let w = l.w[(x - l.x0) as usize];
+            den[i] += w;
+            for (c, n) in num.iter_mut().enumerate() {
+                n[i] += w * values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0];
             }
         }
+    }
+    if c1 > c0 {
+        let span = row_off + (c0 - block.x0) as usize..row_off + (c1 - block.x0) as usize;
+        match rows.len() {
+            1 => accumulate_span::<1>(num, den, values, rows, (y, dy), c0, c1, span),
+            2 => accumulate_span::<2>(num, den, values, rows, (y, dy), c0, c1, span),
+            3 => accumulate_span::<3>(num, den, values, rows, (y, dy), c0, c1, span),
+            _ => accumulate_span::<GROUP_MAX>(num, den, values, rows, (y, dy), c0, c1, span),
+        }
+    }
+}
+
+/// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn accumulate_span<const G: usize>(
+    num: &mut [Vec<f32>],
+    den: &mut [f32],
+    values: &[&Plane],
+    rows: &[LaneRow<'_>],
+    (y, dy): (i64, i64),
+    c0: i64,
+    c1: i64,
+    span: std::ops::Range<usize>,
+) {
+    let n = (c1 - c0) as usize;
+    let w: [&[f32]; G] = std::array::from_fn(|g| &rows[g].w[(c0 - rows[g].x0) as usize..][..n]);
+    let q =
+        |c: usize| -> [&[f32]; G] { std::array::from_fn(|g| values[c].row(y + dy, c0 + rows[g].dx, c1 + rows[g].dx)) };
+    let d = &mut den[span.clone()];
+    if let [n0, n1, n2] = num {
+        // The common case, in one pass: each weight is loaded once.
+        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
+        fused_rgb::<G>([d, n0, n1, n2], w, [q(0), q(1), q(2)]);
+    } else {
+        for i in 0..n {
+            let mut dd = d[i];
+            for wg in &w {
+                dd += wg[i];
+            }
+            d[i] = dd;
+        }
+        for (c, nc) in num.iter_mut().enumerate() {
+            let (nc, qc) = (&mut nc[span.clone()], q(c));
+            for i in 0..n {
+                let mut a = nc[i];
+                for g in 0..G {
+                    a += w[g][i] * qc[g][i];
+                }
+                nc[i] = a;
+            }
+        }
+    }
+}
+
+/// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
+/// (separate `&mut` arguments: the compiler knows they do not alias).
+#[inline(always)]
+fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [q0, q1, q2]: [[&[f32]; G]; 3]) {
+    let n = d.len();
+    let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
+    let w: [&[f32]; G] = std::array::from_fn(|g| &w[g][..n]);
+    let q0: [&[f32]; G] = std::array::from_fn(|g| &q0[g][..n]);
+    let q1: [&[f32]; G] = std::array::from_fn(|g| &q1[g][..n]);
+    let q2: [&[f32]; G] = std::array::from_fn(|g| &q2[g][..n]);
+    for i in 0..n {
+        let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
+        for g in 0..G {
+            let wg = w[g][i];
+            dd += wg;
+            a0 += wg * q0[g][i];
+            a1 += wg * q1[g][i];
+            a2 += wg * q2[g][i];
+        }
+        (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
     }
 }
 
