@@ -2,6 +2,7 @@
 //! colour NL-means applied to the feature itself, the squared gradient
 //! `G(p)`, and the per-pixel denominators of the feature distance.
 
+use super::kernels::log2_distance_scale;
 use super::nlmeans::{GuideFeature, Job, NlmSettings, nlmeans};
 use super::variance;
 use crate::geom::Rect;
@@ -119,6 +120,8 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     };
     let grad = squared_gradient(&values, frame, den_rect);
     let kf2 = s.feature_strength * s.feature_strength;
+    // The channel mean and `-log2(e)` of the weight's argument (see `nlmeans`).
+    let scale = log2_distance_scale(n);
     let inv_den = (0..n)
         .map(|c| {
             Plane::from_fn(den_rect, |x, y| {
@@ -133,7 +136,7 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
                         m = v;
                     }
                 }
-                1.0 / (kf2 * m)
+                scale / (kf2 * m)
             })
         })
         .collect();

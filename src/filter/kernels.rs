@@ -9,38 +9,47 @@
 
 use crate::geom::Rect;
 
-/// `exp(-max(0, d))` for any `d`, with NaN mapped to (almost) zero weight.
+/// The weight `2^min(0, t)` for a distance already scaled to `t = -d log2(e)`
+/// (the filters fold `-log2(e)` into the scale of their box means, so this
+/// is `exp(-max(0, d))`), with `t` clamped below at -126 and NaN mapped there.
 ///
-/// Cephes-style `expf`: range reduction by `ln 2` split in two constants, a
-/// degree-6 polynomial, and scaling by `2^n` through the exponent bits. Pure
+/// `2^t = 2^n 2^f` with `n = round(t)` (read from the mantissa bits after
+/// adding `1.5 * 2^23`), `f = t - n` in `[-0.5, 0.5]`, and `2^f` from a
+/// degree-5 polynomial fitted for relative error (with `p(0) = 1`). Pure
 /// `f32` add/mul, no FMA, no libm: the same bits on every platform and path.
-/// Inputs above 87 are clamped to 87 (`e^-87 ≈ 1.6e-38`), so the result is
-/// always a normal, non-negative number. Maximum relative error against the
-/// exact value is below 3e-7 on `[0, 87]` (tested in `tests`).
+/// The result is always a
+/// normal number in `[2^-126, 1]`; its relative error against `2^t` is below
+/// 3e-7 on `[-126, 0]` (tested below).
 #[inline(always)]
-pub fn exp_neg_clamped(d: f32) -> f32 {
-    // Two selects that map to min/max instructions; NaN fails `d < 87` and
+pub fn exp2_weight(t: f32) -> f32 {
+    // Two selects that map to min/max instructions; NaN fails `t > -126` and
     // lands on the clamp value.
-    let x = if d < 87.0 { d } else { 87.0 };
-    let x = if x > 0.0 { x } else { 0.0 };
-    let x = -x;
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    let t = if t > -126.0 { t } else { -126.0 };
+    let t = if t < 0.0 { t } else { 0.0 };
     const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
-    let t = x * LOG2E + ROUND;
-    let n = t - ROUND;
-    // `t`'s low mantissa bits hold the integer `n` in [-126, 0]: read it with an
-    // integer subtraction (a float-to-int cast would be scalarised).
-    let ni = (t.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
-    let r = (x - n * 0.693_359_4) - n * -2.121_944_4e-4;
-    let mut p = 1.987_569_1e-4_f32;
-    p = p * r + 1.398_199_9e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5; // Cephes: 5.0000001201E-1, which rounds to 0.5 in f32
-    let y = (p * (r * r) + r) + 1.0;
-    let scale = f32::from_bits(((ni + 127) as u32) << 23);
-    y * scale
+    let tr = t + ROUND;
+    let n = tr - ROUND;
+    let f = t - n;
+    // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it with
+    // an integer subtraction (a float-to-int cast would be scalarised).
+    let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
+    // Constant term exactly 1: integer `t` give exact powers of two.
+    let mut p = 1.326_470_2e-3_f32;
+    p = p * f + 9.671_505e-3;
+    p = p * f + 5.550_733_6e-2;
+    p = p * f + 2.402_224_2e-1;
+    // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
+    #[allow(clippy::approx_constant)]
+    let c1 = 0.693_147_f32;
+    p = p * f + c1;
+    p = p * f + 1.0;
+    p * f32::from_bits(((ni + 127) as u32) << 23)
+}
+
+/// The factor turning a sum of per-channel distances into `t` of
+/// [`exp2_weight`]: `-log2(e) / channels`.
+pub fn log2_distance_scale(channels: usize) -> f32 {
+    -std::f32::consts::LOG2_E / channels as f32
 }
 
 /// `1 / x` for normal positive `x` in `[1e-30, 1e37]`, from add/mul only.
@@ -212,19 +221,29 @@ mod tests {
     use super::*;
 
     #[test]
-    fn exp_matches_f64_within_bound() {
+    fn exp2_weight_matches_f64_within_bound() {
         let mut worst = 0.0f64;
-        let mut d = 0.0f32;
-        while d < 87.0 {
-            let got = exp_neg_clamped(d) as f64;
-            let want = (-(d as f64)).exp();
+        let mut t = -126.0f32;
+        while t <= 0.0 {
+            let got = exp2_weight(t) as f64;
+            let want = (t as f64).exp2();
             worst = worst.max(((got - want) / want).abs());
-            d += 0.001_37;
+            t += 0.000_93;
+        }
+        // Every float of one unit interval near zero (the polynomial's range).
+        for bits in ((-1.0f32).to_bits()..=(-0.5f32).to_bits()).step_by(3) {
+            let t = f32::from_bits(bits);
+            worst = worst.max(((exp2_weight(t) as f64) / (t as f64).exp2() - 1.0).abs());
         }
         assert!(worst < 3e-7, "worst relative error {worst}");
-        assert_eq!(exp_neg_clamped(-5.0), 1.0);
-        assert!(exp_neg_clamped(f32::NAN) < 1e-37);
-        assert!(exp_neg_clamped(f32::INFINITY) < 1e-37);
+        assert_eq!(exp2_weight(0.0), 1.0);
+        assert_eq!(exp2_weight(5.0), 1.0);
+        assert_eq!(exp2_weight(-1.0), 0.5);
+        let floor = exp2_weight(-126.0);
+        assert!(floor.is_normal() && floor < 1.2e-38);
+        assert_eq!(exp2_weight(f32::NAN), floor);
+        assert_eq!(exp2_weight(f32::NEG_INFINITY), floor);
+        assert_eq!(exp2_weight(-1e30), floor);
     }
 
     #[test]

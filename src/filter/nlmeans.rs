@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, exp_neg_clamped};
+use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, exp2_weight, log2_distance_scale};
 use super::simd::{self, Tier};
 use crate::geom::Rect;
 use crate::image::Plane;
@@ -53,7 +53,8 @@ pub struct GuideFeature {
     pub values: Vec<Plane>,
     /// Variance of each channel, same coverage, when the feature has one.
     pub variance: Option<Vec<Plane>>,
-    /// `1 / (kf^2 max(tau, V_c(p), G(p)))` per channel, covering `(out ⊕ f) ∩ frame`.
+    /// `-log2(e) / (channels kf^2 max(tau, V_c(p), G(p)))` per channel, covering
+    /// `(out ⊕ f) ∩ frame`: the weight argument of `kernels::exp2_weight`.
     pub inv_den: Vec<Plane>,
 }
 
@@ -208,7 +209,8 @@ fn filter_block_body(
                 // The three passes run interleaved, row by row: each weight row
                 // as soon as its window of distance rows is complete, each
                 // accumulated row as soon as its window of weight rows is.
-                let inv_c = 1.0 / job.values.len() as f32;
+                // Channel mean and `-log2(e)`, folded into the patch mean's scale.
+                let kd = log2_distance_scale(job.values.len());
                 let (mut next_w, mut next_a) = (w_y.0, a_y.0);
                 for yd in d_y.0..d_y.1 {
                     for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
@@ -228,9 +230,6 @@ fn filter_block_body(
                                 k2,
                             );
                         }
-                        for a in d.iter_mut() {
-                            *a *= inv_c;
-                        }
                         let (slot, ww) = ((yd - d_y.0) as usize % cap, lane.w.width());
                         window_sums_row(
                             d,
@@ -248,16 +247,16 @@ fn filter_block_body(
                         for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
                             let ww = lane.w.width();
                             let wr = &mut wrow[..ww];
-                            vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, wr);
+                            vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, kd, wr);
                             if features.is_empty() {
                                 for v in wr.iter_mut() {
-                                    *v = exp_neg_clamped(*v);
+                                    *v = exp2_weight(*v);
                                 }
                             } else {
+                                // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
                                 let ri = (y - w_y.0) as usize;
-                                for (v, wf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
-                                    let wc = exp_neg_clamped(*v);
-                                    *v = if *wf < wc { *wf } else { wc };
+                                for (v, tf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
+                                    *v = exp2_weight(if *tf < *v { *tf } else { *v });
                                 }
                             }
                             let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
@@ -284,6 +283,7 @@ fn filter_block_body(
                                     lane.valid,
                                     f,
                                     lane.acc.x0,
+                                    1.0,
                                     &mut buf.mean_w[..aw],
                                 );
                             }
@@ -423,13 +423,23 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
 
 /// Window means of row `y`: the vertical sums of the ring's rows over
 /// `[y - f, y + f] ∩ clip` (row `k` of the ring is frame row `ring_y0 + k`),
-/// scaled by `1 / count` of each clipped window (columns from `x0`).
+/// scaled by `k / count` of each clipped window (columns from `x0`).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn vertical_means(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, x0: i64, out: &mut [f32]) {
+fn vertical_means(
+    ring: &[f32],
+    cap: usize,
+    ring_y0: i64,
+    y: i64,
+    clip: Rect,
+    f: i64,
+    x0: i64,
+    k: f32,
+    out: &mut [f32],
+) {
     let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
     ring_column_sums(ring, out.len(), cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
-    scale_by_count(out, x0, clip, f, (b - a + 1) as f32);
+    scale_by_count(out, x0, clip, f, (b - a + 1) as f32, k);
 }
 
 /// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
@@ -579,25 +589,27 @@ fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     }
 }
 
-/// Turn window sums into means: multiply by `1 / (nx * ny)`, where `nx` is the
-/// clipped window width of each column (from `x0`) and `ny` the row's window
-/// height; the reciprocal is computed once per distinct count.
+/// Turn window sums into (scaled) means: multiply by `k / (nx * ny)`, where
+/// `nx` is the clipped window width of each column (from `x0`) and `ny` the
+/// row's window height; the factor is computed once per distinct count.
 #[inline(always)]
-fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32) {
+fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32) {
     let x1 = x0 + row.len() as i64;
     let inner_x0 = (clip.x0 + f).clamp(x0, x1);
     let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
-    let inner = 1.0 / ((2 * f + 1) as f32 * ny);
+    let inner = k / ((2 * f + 1) as f32 * ny);
     for v in &mut row[(inner_x0 - x0) as usize..(inner_x1 - x0) as usize] {
         *v *= inner;
     }
     for x in (x0..inner_x0).chain(inner_x1..x1) {
         let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
-        row[(x - x0) as usize] *= 1.0 / (nx * ny);
+        row[(x - x0) as usize] *= k / (nx * ny);
     }
 }
 
-/// `w_f = exp(-max(0, max_j Phi_j^2))` on `rect` for offset `(dx, dy)`.
+/// `t_f = -log2(e) max(0, max_j Phi_j^2)` on `rect` for offset `(dx, dy)`,
+/// the feature weight's argument for [`exp2_weight`] (each feature's
+/// `inv_den` already holds `-log2(e) / channels`).
 #[inline(always)]
 fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32], phi: &mut Vec<f32>) {
     let w = rect.width();
@@ -617,17 +629,12 @@ fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out:
                     .map(|v| (v[c].row(y, rect.x0, rect.x1), v[c].row(y + dy, rect.x0 + dx, rect.x1 + dx)));
                 accumulate_feature_distance(phi, fp, fq, var, feat.inv_den[c].row(y, rect.x0, rect.x1));
             }
-            let inv_c = 1.0 / feat.values.len() as f32;
             for (o, p) in row.iter_mut().zip(phi.iter()) {
-                let v = *p * inv_c;
-                // NaN-safe max: a NaN distance must not win over a finite one.
-                if v > *o {
-                    *o = v;
+                // NaN-safe: a NaN distance must not win over a finite one.
+                if *p < *o {
+                    *o = *p;
                 }
             }
-        }
-        for o in row.iter_mut() {
-            *o = exp_neg_clamped(*o);
         }
     }
 }
