@@ -6,6 +6,7 @@
 //! `cargo run --release --example timing -- MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]`
 //! MODE: `colour` (beauty + variance only) or `full` (the default filter with
 //! albedo, normal and depth features, and the direct/indirect light layers).
+//! `NLDENOISE_TILE=N` sets the tile size (default: the engine's).
 
 use std::time::Instant;
 
@@ -35,7 +36,9 @@ fn main() {
     };
     let roles = roles::detect("timing".as_ref(), &frame.channel_names(), &opts).unwrap();
     let params = Params { search_radius: radius, ..Params::default() };
-    let stream = StreamOptions { threads, memory_limit: 8 << 30, ..StreamOptions::default() };
+    let tile_size: usize =
+        std::env::var("NLDENOISE_TILE").ok().and_then(|s| s.parse().ok()).unwrap_or(StreamOptions::default().tile_size);
+    let stream = StreamOptions { threads, memory_limit: 8 << 30, tile_size, ..StreamOptions::default() };
     let mut best = f64::INFINITY;
     for _ in 0..runs {
         let t = Instant::now();
