@@ -184,6 +184,39 @@ pub fn accumulate_colour_distance(
     }
 }
 
+/// Both distances of a pair of offsets for a row, sharing their common terms:
+/// `fwd[i] += d2_c(p, p + n)` and `mir[i] += d2_c(p + n, p)` (the distance of
+/// pixel `p + n` for offset `-n`), with `up = u(p)`, `uq = u(p + n)`.
+///
+/// `fwd` gets exactly the operations of [`accumulate_colour_distance`]; `mir`
+/// the same with the roles of `vp` and `vq` swapped (the squared difference,
+/// the minimum, the denominator's sum and its reciprocal are symmetric and
+/// computed once).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn accumulate_colour_distance_pair(
+    fwd: &mut [f32],
+    mir: &mut [f32],
+    up: &[f32],
+    uq: &[f32],
+    vp: &[f32],
+    vq: &[f32],
+    alpha: f32,
+    eps: f32,
+    k2: f32,
+) {
+    let n = fwd.len();
+    let (mir, up, uq, vp, vq) = (&mut mir[..n], &up[..n], &uq[..n], &vp[..n], &vq[..n]);
+    for i in 0..n {
+        let d = up[i] - uq[i];
+        let d2 = d * d;
+        let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
+        let r = recip(eps + k2 * (vp[i] + vq[i]));
+        fwd[i] += (d2 - alpha * (vp[i] + m)) * r;
+        mir[i] += (d2 - alpha * (vq[i] + m)) * r;
+    }
+}
+
 /// Accumulate one feature channel's distance for a row (SPEC §3), with the
 /// per-pixel reciprocal denominator precomputed:
 /// `acc[i] += ((fp - fq)^2 - (vp + min(vp, vq))) * inv_den[i]`

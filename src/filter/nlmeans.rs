@@ -8,7 +8,10 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{accumulate_colour_distance, accumulate_feature_distance, exp2_weight, log2_distance_scale};
+use super::kernels::{
+    accumulate_colour_distance, accumulate_colour_distance_pair, accumulate_feature_distance, exp2_weight,
+    log2_distance_scale,
+};
 use super::simd::{self, Tier};
 use crate::geom::Rect;
 use crate::image::Plane;
@@ -165,7 +168,8 @@ fn filter_block_body(
     // Ring buffers of the last 2f + 1 rows of horizontal sums: a vertical
     // window never reaches further back.
     let cap = 2 * s.patch_radius + 1;
-    let mut lanes: Vec<LaneBuffers> = (0..GROUP_MAX)
+    // Forward lanes use buffers 0..GROUP_MAX, mirror lanes the next GROUP_MAX.
+    let mut lanes: Vec<LaneBuffers> = (0..2 * GROUP_MAX)
         .map(|_| LaneBuffers {
             h1: vec![0.0f32; mid.width() * cap],
             h2: vec![0.0f32; block.width() * cap],
@@ -173,132 +177,99 @@ fn filter_block_body(
             wfeat: if features.is_empty() { Vec::new() } else { vec![0.0f32; mid.area()] },
         })
         .collect();
-    let mut drow = vec![0.0f32; outer.width()];
-    let mut wrow = vec![0.0f32; mid.width()];
+    // The mirror distances of each pair, stored for the mirror lanes: at most
+    // `outer` widened by `r` in both directions.
+    let plane_len = (outer.width() + s.search_radius) * (outer.height() + s.search_radius);
+    let mut mirror_planes: Vec<Vec<f32>> = (0..GROUP_MAX).map(|_| vec![0.0f32; plane_len]).collect();
+    let mut scratch = Scratch {
+        drow: vec![0.0f32; outer.width() + s.search_radius],
+        mrow: vec![0.0f32; outer.width() + s.search_radius],
+        wrow: vec![0.0f32; mid.width()],
+    };
     let mut phi = Vec::with_capacity(mid.width());
+    let geometry = |dx: i64, dy: i64| {
+        let valid = frame.valid_for_offset(dx, dy);
+        Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
+    };
 
-    for dy in -r..=r {
-        for dxs in offset_groups(r) {
-            // The offsets of a group share `dy`, hence every row range: their
-            // passes run in lock step and their mean weights are accumulated
-            // in one pass over the block's numerators and denominator.
+    for step in offset_schedule(r) {
+        let dy = step.dy;
+        if !step.paired {
+            // The offsets computed alone (the centre): distances computed directly.
             let mut group = [Lane::EMPTY; GROUP_MAX];
             let mut g = 0;
-            for dx in dxs {
-                let valid = frame.valid_for_offset(dx, dy);
-                let acc = block.intersect(&valid);
-                if !acc.is_empty() {
-                    group[g] = Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc };
+            for dx in step.dxs {
+                let lane = geometry(dx, dy);
+                if !lane.acc.is_empty() {
+                    group[g] = lane;
                     g += 1;
                 }
             }
             let group = &group[..g];
-            let Some(first) = group.first() else { continue };
-            // Row ranges, equal for every lane of the group.
-            let (d_y, w_y, a_y, valid_y1) =
-                ((first.d.y0, first.d.y1), (first.w.y0, first.w.y1), (first.acc.y0, first.acc.y1), first.valid.y1);
-            let last_row = |y: i64| (y + f).min(valid_y1 - 1);
-
             if !features.is_empty() {
                 for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
                     feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
                 }
             }
-
             for (j, job) in jobs.iter().enumerate() {
-                // The three passes run interleaved, row by row: each weight row
-                // as soon as its window of distance rows is complete, each
-                // accumulated row as soon as its window of weight rows is.
-                // Channel mean and `-log2(e)`, folded into the patch mean's scale.
-                let kd = log2_distance_scale(job.values.len());
-                let (mut next_w, mut next_a) = (w_y.0, a_y.0);
-                for yd in d_y.0..d_y.1 {
-                    for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
-                        // 1. A distance row and its horizontal sums.
-                        let (d_rect, dx) = (lane.d, lane.dx);
-                        let d = &mut drow[..d_rect.width()];
-                        d.fill(0.0);
-                        for (u, v) in job.values.iter().zip(&job.variance) {
-                            accumulate_colour_distance(
-                                d,
-                                u.row(yd, d_rect.x0, d_rect.x1),
-                                u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                                v.row(yd, d_rect.x0, d_rect.x1),
-                                v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                                s.alpha,
-                                s.eps,
-                                k2,
-                            );
-                        }
-                        let (slot, ww) = ((yd - d_y.0) as usize % cap, lane.w.width());
-                        window_sums_row(
-                            d,
-                            d_rect.x0,
-                            lane.valid,
-                            f,
-                            lane.w.x0,
-                            &mut buf.h1[slot * ww..(slot + 1) * ww],
-                        );
-                    }
-                    // 2. Patch distances, weights, and their horizontal sums.
-                    while next_w < w_y.1 && last_row(next_w) <= yd {
-                        let y = next_w;
-                        next_w += 1;
-                        for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
-                            let ww = lane.w.width();
-                            let wr = &mut wrow[..ww];
-                            vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, kd, wr);
-                            if features.is_empty() {
-                                for v in wr.iter_mut() {
-                                    *v = exp2_weight(*v);
-                                }
-                            } else {
-                                // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
-                                let ri = (y - w_y.0) as usize;
-                                for (v, tf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
-                                    *v = exp2_weight(if *tf < *v { *tf } else { *v });
-                                }
-                            }
-                            let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
-                            window_sums_row(
-                                wr,
-                                lane.w.x0,
-                                lane.valid,
-                                f,
-                                lane.acc.x0,
-                                &mut buf.h2[slot * aw..(slot + 1) * aw],
-                            );
-                        }
-                        // 3. Mean weights of every lane, accumulated in one pass.
-                        while next_a < a_y.1 && last_row(next_a) <= y {
-                            let ya = next_a;
-                            next_a += 1;
-                            for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
-                                let aw = lane.acc.width();
-                                vertical_means(
-                                    &buf.h2,
-                                    cap,
-                                    w_y.0,
-                                    ya,
-                                    lane.valid,
-                                    f,
-                                    lane.acc.x0,
-                                    1.0,
-                                    &mut buf.mean_w[..aw],
-                                );
-                            }
-                            let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
-                                Some(lane) => {
-                                    LaneRow { w: &lanes[g].mean_w[..lane.acc.width()], x0: lane.acc.x0, dx: lane.dx }
-                                }
-                                None => LaneRow { w: &[], x0: 0, dx: 0 },
-                            });
-                            accumulate(&mut num[j], &mut den[j], &job.values, &rows[..group.len()], ya, dy, block);
-                        }
-                    }
-                }
-                debug_assert!(next_w == w_y.1 && next_a == a_y.1);
+                let ctx = GroupCtx { job, dy, features: !features.is_empty(), f, cap, block, s, k2 };
+                run_group(&ctx, &mut num[j], &mut den[j], group, &mut lanes, &mut Source::Direct, &mut scratch);
             }
+            continue;
+        }
+        // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
+        // share are computed once, over `u`, the pixels `p` whose `(p, p + n)`
+        // either direction needs: `p` for `n`, `p + n` for `-n`.
+        let mut pairs = [PairLane { dx: 0, u: Rect::EMPTY, fwd: None }; GROUP_MAX];
+        let (mut fwd, mut mir) = ([Lane::EMPTY; GROUP_MAX], [Lane::EMPTY; GROUP_MAX]);
+        let mut mir_src = [(0usize, Rect::EMPTY); GROUP_MAX];
+        let (mut np, mut nf, mut nm) = (0, 0, 0);
+        for dx in step.dxs {
+            let (lf, lm) = (geometry(dx, dy), geometry(-dx, -dy));
+            if lf.acc.is_empty() && lm.acc.is_empty() {
+                continue;
+            }
+            // Both `lf.d` and `lm.d - n` lie in `valid(n)`; rows are shared by
+            // the group (they depend on `dy` only).
+            let u = Rect {
+                x0: outer.x0.min(outer.x0 - dx).max(lf.valid.x0),
+                x1: outer.x1.max(outer.x1 - dx).min(lf.valid.x1),
+                y0: (outer.y0 - dy).max(lf.valid.y0),
+                y1: outer.y1.min(lf.valid.y1),
+            };
+            let mut fwd_idx = None;
+            if !lf.acc.is_empty() {
+                fwd[nf] = lf;
+                fwd_idx = Some(nf);
+                nf += 1;
+            }
+            if !lm.acc.is_empty() {
+                mir[nm] = lm;
+                mir_src[nm] = (np, u.translate(dx, dy));
+                nm += 1;
+            }
+            pairs[np] = PairLane { dx, u, fwd: fwd_idx };
+            np += 1;
+        }
+        if np == 0 {
+            continue;
+        }
+        let (pairs, fwd, mir, mir_src) = (&pairs[..np], &fwd[..nf], &mir[..nm], &mir_src[..nm]);
+        if !features.is_empty() {
+            for (lane, buf) in fwd.iter().zip(lanes.iter_mut()) {
+                feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+            }
+            for (lane, buf) in mir.iter().zip(lanes[GROUP_MAX..].iter_mut()) {
+                feature_weights(features, lane.w, lane.dx, -dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+            }
+        }
+        for (j, job) in jobs.iter().enumerate() {
+            let ctx = GroupCtx { job, dy, features: !features.is_empty(), f, cap, block, s, k2 };
+            let mut source = Source::Pair { pairs, planes: &mut mirror_planes };
+            run_group(&ctx, &mut num[j], &mut den[j], fwd, &mut lanes[..GROUP_MAX], &mut source, &mut scratch);
+            let ctx = GroupCtx { dy: -dy, ..ctx };
+            let mut source = Source::Mirror { planes: &mirror_planes, src: mir_src };
+            run_group(&ctx, &mut num[j], &mut den[j], mir, &mut lanes[GROUP_MAX..], &mut source, &mut scratch);
         }
     }
 
@@ -318,17 +289,217 @@ fn filter_block_body(
         .collect()
 }
 
+/// What a group's pass runs on, besides its lanes.
+#[derive(Clone, Copy)]
+struct GroupCtx<'a, 'j> {
+    job: &'a Job<'j>,
+    dy: i64,
+    features: bool,
+    f: i64,
+    cap: usize,
+    block: Rect,
+    s: &'a NlmSettings,
+    k2: f32,
+}
+
+/// Row buffers shared by every group of a block.
+struct Scratch {
+    drow: Vec<f32>,
+    mrow: Vec<f32>,
+    wrow: Vec<f32>,
+}
+
+/// One pair of offsets `n = (dx, dy)` and `-n`.
+#[derive(Clone, Copy)]
+struct PairLane {
+    dx: i64,
+    /// Pixels `p` whose shared terms of `(p, p + n)` are computed.
+    u: Rect,
+    /// The forward lane (offset `n`) this pair feeds, when `n` is needed.
+    fwd: Option<usize>,
+}
+
+/// Where a group's per-pixel distances come from.
+enum Source<'a> {
+    /// Computed for each lane.
+    Direct,
+    /// Computed for the pairs, over their `u`: the forward lanes take the rows
+    /// of `n`, and the rows of `-n` are stored in `planes[k]` (pair `k`), which
+    /// covers `u + n`.
+    Pair { pairs: &'a [PairLane], planes: &'a mut [Vec<f32>] },
+    /// Read from the stored planes: lane `g` reads plane `src[g].0`, covering `src[g].1`.
+    Mirror { planes: &'a [Vec<f32>], src: &'a [(usize, Rect)] },
+}
+
+/// Filter one group of offsets (sharing `dy`) for one job: the three passes
+/// of every lane in lock step, row by row, and one fused accumulation per row.
+#[inline(always)]
+fn run_group(
+    ctx: &GroupCtx<'_, '_>,
+    num: &mut [Vec<f32>],
+    den: &mut [f32],
+    group: &[Lane],
+    bufs: &mut [LaneBuffers],
+    source: &mut Source<'_>,
+    scratch: &mut Scratch,
+) {
+    let GroupCtx { job, dy, features, f, cap, block, s, k2 } = *ctx;
+    // Row ranges, equal for every lane of the group (they depend on `dy` only).
+    let (d_y, w_y, a_y, valid_y1) = match group.first() {
+        Some(l) => ((l.d.y0, l.d.y1), (l.w.y0, l.w.y1), (l.acc.y0, l.acc.y1), l.valid.y1),
+        None => ((0, 0), (0, 0), (0, 0), 0),
+    };
+    let last_row = |y: i64| (y + f).min(valid_y1 - 1);
+    // The rows the source walks: a pair's shared rows start above the forward lanes' rows.
+    let rows = match source {
+        Source::Pair { pairs, .. } => pairs[0].u.y0..pairs[0].u.y1,
+        _ => d_y.0..d_y.1,
+    };
+    // Channel mean and `-log2(e)`, folded into the patch mean's scale.
+    let kd = log2_distance_scale(job.values.len());
+    let (mut next_w, mut next_a) = (w_y.0, a_y.0);
+    for yd in rows {
+        // 1. Distance rows and their horizontal sums.
+        match source {
+            Source::Direct => {
+                for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
+                    let (d_rect, dx) = (lane.d, lane.dx);
+                    let d = &mut scratch.drow[..d_rect.width()];
+                    d.fill(0.0);
+                    for (u, v) in job.values.iter().zip(&job.variance) {
+                        accumulate_colour_distance(
+                            d,
+                            u.row(yd, d_rect.x0, d_rect.x1),
+                            u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            v.row(yd, d_rect.x0, d_rect.x1),
+                            v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
+                            s.alpha,
+                            s.eps,
+                            k2,
+                        );
+                    }
+                    push_h1(lane, buf, d, d_rect.x0, yd - d_y.0, f, cap);
+                }
+            }
+            Source::Pair { pairs, planes } => {
+                for (k, pair) in pairs.iter().enumerate() {
+                    let (u_rect, dx) = (pair.u, pair.dx);
+                    let (d, m) = (&mut scratch.drow[..u_rect.width()], &mut scratch.mrow[..u_rect.width()]);
+                    d.fill(0.0);
+                    m.fill(0.0);
+                    for (u, v) in job.values.iter().zip(&job.variance) {
+                        accumulate_colour_distance_pair(
+                            d,
+                            m,
+                            u.row(yd, u_rect.x0, u_rect.x1),
+                            u.row(yd + dy, u_rect.x0 + dx, u_rect.x1 + dx),
+                            v.row(yd, u_rect.x0, u_rect.x1),
+                            v.row(yd + dy, u_rect.x0 + dx, u_rect.x1 + dx),
+                            s.alpha,
+                            s.eps,
+                            k2,
+                        );
+                    }
+                    let w = u_rect.width();
+                    let ri = (yd - u_rect.y0) as usize;
+                    planes[k][ri * w..(ri + 1) * w].copy_from_slice(m);
+                    if let Some(g) = pair.fwd
+                        && (d_y.0..d_y.1).contains(&yd)
+                    {
+                        let lane = &group[g];
+                        let from = (lane.d.x0 - u_rect.x0) as usize;
+                        push_h1(lane, &mut bufs[g], &d[from..from + lane.d.width()], lane.d.x0, yd - d_y.0, f, cap);
+                    }
+                }
+            }
+            Source::Mirror { planes, src } => {
+                for ((lane, buf), &(k, rect)) in group.iter().zip(bufs.iter_mut()).zip(src.iter()) {
+                    let w = rect.width();
+                    let start = (yd - rect.y0) as usize * w + (lane.d.x0 - rect.x0) as usize;
+                    push_h1(lane, buf, &planes[k][start..start + lane.d.width()], lane.d.x0, yd - d_y.0, f, cap);
+                }
+            }
+        }
+        // 2. Patch distances, weights, and their horizontal sums.
+        while next_w < w_y.1 && last_row(next_w) <= yd {
+            let y = next_w;
+            next_w += 1;
+            for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
+                let ww = lane.w.width();
+                let wr = &mut scratch.wrow[..ww];
+                vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, kd, wr);
+                if !features {
+                    for v in wr.iter_mut() {
+                        *v = exp2_weight(*v);
+                    }
+                } else {
+                    // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
+                    let ri = (y - w_y.0) as usize;
+                    for (v, tf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
+                        *v = exp2_weight(if *tf < *v { *tf } else { *v });
+                    }
+                }
+                let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
+                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * aw..(slot + 1) * aw]);
+            }
+            // 3. Mean weights of every lane, accumulated in one pass.
+            while next_a < a_y.1 && last_row(next_a) <= y {
+                let ya = next_a;
+                next_a += 1;
+                for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
+                    let aw = lane.acc.width();
+                    vertical_means(&buf.h2, cap, w_y.0, ya, lane.valid, f, lane.acc.x0, 1.0, &mut buf.mean_w[..aw]);
+                }
+                let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
+                    Some(lane) => LaneRow { w: &bufs[g].mean_w[..lane.acc.width()], x0: lane.acc.x0, dx: lane.dx },
+                    None => LaneRow { w: &[], x0: 0, dx: 0 },
+                });
+                accumulate(num, den, &job.values, &rows[..group.len()], ya, dy, block);
+            }
+        }
+    }
+    debug_assert!(next_w == w_y.1 && next_a == a_y.1);
+}
+
+/// Push a lane's distance row `d` (frame row `d_y0 + ri`, columns from `x0`)
+/// as its horizontal window sums into the lane's ring `h1`.
+#[inline(always)]
+fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i64, cap: usize) {
+    let (slot, ww) = (ri as usize % cap, lane.w.width());
+    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * ww..(slot + 1) * ww]);
+}
+
+/// The order in which a block visits the search offsets: the centre alone,
+/// then, for `dy` from 0 to `r`, groups of `n = (dx, dy)` in the half plane
+/// (`dy > 0`, or `dy = 0` and `dx > 0`), each followed by its mirror `-n`.
+fn offset_schedule(r: i64) -> impl Iterator<Item = Step> {
+    let centre = std::iter::once(Step { dy: 0, dxs: 0..1, paired: false });
+    let rows = (0..=r).flat_map(move |dy| {
+        let first = if dy == 0 { 1 } else { -r };
+        offset_groups(first, r).map(move |dxs| Step { dy, dxs, paired: true })
+    });
+    centre.chain(rows)
+}
+
+/// One step of [`offset_schedule`].
+struct Step {
+    dy: i64,
+    dxs: std::ops::Range<i64>,
+    /// Whether each offset of the step is filtered with its mirror.
+    paired: bool,
+}
+
 /// The most search offsets filtered in lock step (one accumulation pass each).
 const GROUP_MAX: usize = 4;
 
-/// The horizontal offsets `-r..=r` cut into groups of at most [`GROUP_MAX`],
-/// as even as possible, in increasing order.
-fn offset_groups(r: i64) -> impl Iterator<Item = std::ops::Range<i64>> {
-    let n = 2 * r + 1;
+/// The horizontal offsets `first..=last` cut into groups of at most
+/// [`GROUP_MAX`], as even as possible, in increasing order.
+fn offset_groups(first: i64, last: i64) -> impl Iterator<Item = std::ops::Range<i64>> {
+    let n = (last - first + 1).max(0);
     let groups = (n + GROUP_MAX as i64 - 1) / GROUP_MAX as i64;
-    let (base, extra) = (n / groups, n % groups);
+    let (base, extra) = (n / groups.max(1), n % groups.max(1));
     (0..groups).map(move |i| {
-        let start = -r + i * base + i.min(extra);
+        let start = first + i * base + i.min(extra);
         start..start + base + i64::from(i < extra)
     })
 }
