@@ -217,6 +217,38 @@ pub fn accumulate_colour_distance_pair(
     }
 }
 
+/// [`accumulate_colour_distance_pair`] over three channels at once into
+/// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
+/// same operations as three calls on rows filled with zeros, without the rows'
+/// round trips through memory.
+#[inline(always)]
+pub fn colour_distance_pair_rgb(
+    fwd: &mut [f32],
+    mir: &mut [f32],
+    up: [&[f32]; 3],
+    uq: [&[f32]; 3],
+    vp: [&[f32]; 3],
+    vq: [&[f32]; 3],
+    (alpha, eps, k2): (f32, f32, f32),
+) {
+    let n = fwd.len();
+    let mir = &mut mir[..n];
+    let (up, uq, vp, vq) = (up.map(|r| &r[..n]), uq.map(|r| &r[..n]), vp.map(|r| &r[..n]), vq.map(|r| &r[..n]));
+    for i in 0..n {
+        let (mut a, mut b) = (0.0f32, 0.0f32);
+        for c in 0..3 {
+            let d = up[c][i] - uq[c][i];
+            let d2 = d * d;
+            let m = if vq[c][i] < vp[c][i] { vq[c][i] } else { vp[c][i] };
+            let r = recip(eps + k2 * (vp[c][i] + vq[c][i]));
+            a += (d2 - alpha * (vp[c][i] + m)) * r;
+            b += (d2 - alpha * (vq[c][i] + m)) * r;
+        }
+        fwd[i] = a;
+        mir[i] = b;
+    }
+}
+
 /// Accumulate one feature channel's distance for a row (SPEC §3), with the
 /// per-pixel reciprocal denominator precomputed:
 /// `acc[i] += ((fp - fq)^2 - (vp + min(vp, vq))) * inv_den[i]`

@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    accumulate_colour_distance, accumulate_colour_distance_pair, accumulate_feature_distance, exp2_weight,
-    log2_distance_scale,
+    accumulate_colour_distance, accumulate_colour_distance_pair, accumulate_feature_distance, colour_distance_pair_rgb,
+    exp2_weight, log2_distance_scale,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -181,11 +181,7 @@ fn filter_block_body(
     // `outer` widened by `r` in both directions.
     let plane_len = (outer.width() + s.search_radius) * (outer.height() + s.search_radius);
     let mut mirror_planes: Vec<Vec<f32>> = (0..GROUP_MAX).map(|_| vec![0.0f32; plane_len]).collect();
-    let mut scratch = Scratch {
-        drow: vec![0.0f32; outer.width() + s.search_radius],
-        mrow: vec![0.0f32; outer.width() + s.search_radius],
-        wrow: vec![0.0f32; mid.width()],
-    };
+    let mut scratch = Scratch { drow: vec![0.0f32; outer.width() + s.search_radius], wrow: vec![0.0f32; mid.width()] };
     let mut phi = Vec::with_capacity(mid.width());
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
@@ -305,7 +301,6 @@ struct GroupCtx<'a, 'j> {
 /// Row buffers shared by every group of a block.
 struct Scratch {
     drow: Vec<f32>,
-    mrow: Vec<f32>,
     wrow: Vec<f32>,
 }
 
@@ -384,25 +379,41 @@ fn run_group(
             Source::Pair { pairs, planes } => {
                 for (k, pair) in pairs.iter().enumerate() {
                     let (u_rect, dx) = (pair.u, pair.dx);
-                    let (d, m) = (&mut scratch.drow[..u_rect.width()], &mut scratch.mrow[..u_rect.width()]);
-                    d.fill(0.0);
-                    m.fill(0.0);
-                    for (u, v) in job.values.iter().zip(&job.variance) {
-                        accumulate_colour_distance_pair(
-                            d,
-                            m,
-                            u.row(yd, u_rect.x0, u_rect.x1),
-                            u.row(yd + dy, u_rect.x0 + dx, u_rect.x1 + dx),
-                            v.row(yd, u_rect.x0, u_rect.x1),
-                            v.row(yd + dy, u_rect.x0 + dx, u_rect.x1 + dx),
-                            s.alpha,
-                            s.eps,
-                            k2,
-                        );
-                    }
                     let w = u_rect.width();
                     let ri = (yd - u_rect.y0) as usize;
-                    planes[k][ri * w..(ri + 1) * w].copy_from_slice(m);
+                    // The mirror row goes straight into its plane.
+                    let (d, m) = (&mut scratch.drow[..w], &mut planes[k][ri * w..(ri + 1) * w]);
+                    fn shifted<'p>(p: &'p Plane, y: i64, x: (i64, i64), dx: i64) -> &'p [f32] {
+                        p.row(y, x.0 + dx, x.1 + dx)
+                    }
+                    let ux = (u_rect.x0, u_rect.x1);
+                    if let ([u0, u1, u2], [v0, v1, v2]) = (&job.values[..], &job.variance[..]) {
+                        colour_distance_pair_rgb(
+                            d,
+                            m,
+                            [shifted(u0, yd, ux, 0), shifted(u1, yd, ux, 0), shifted(u2, yd, ux, 0)],
+                            [shifted(u0, yd + dy, ux, dx), shifted(u1, yd + dy, ux, dx), shifted(u2, yd + dy, ux, dx)],
+                            [shifted(v0, yd, ux, 0), shifted(v1, yd, ux, 0), shifted(v2, yd, ux, 0)],
+                            [shifted(v0, yd + dy, ux, dx), shifted(v1, yd + dy, ux, dx), shifted(v2, yd + dy, ux, dx)],
+                            (s.alpha, s.eps, k2),
+                        );
+                    } else {
+                        d.fill(0.0);
+                        m.fill(0.0);
+                        for (u, v) in job.values.iter().zip(&job.variance) {
+                            accumulate_colour_distance_pair(
+                                d,
+                                m,
+                                shifted(u, yd, ux, 0),
+                                shifted(u, yd + dy, ux, dx),
+                                shifted(v, yd, ux, 0),
+                                shifted(v, yd + dy, ux, dx),
+                                s.alpha,
+                                s.eps,
+                                k2,
+                            );
+                        }
+                    }
                     if let Some(g) = pair.fwd
                         && (d_y.0..d_y.1).contains(&yd)
                     {
