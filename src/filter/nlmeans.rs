@@ -383,7 +383,7 @@ fn run_group(
                     let ri = (yd - u_rect.y0) as usize;
                     // The mirror row goes straight into its plane.
                     let (d, m) = (&mut scratch.drow[..w], &mut planes[k][ri * w..(ri + 1) * w]);
-                    fn shifted<'p>(p: &'p Plane, y: i64, x: (i64, i64), dx: i64) -> &'p [f32] {
+                    fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
                         p.row(y, x.0 + dx, x.1 + dx)
                     }
                     let ux = (u_rect.x0, u_rect.x1);
