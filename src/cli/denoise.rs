@@ -30,7 +30,7 @@ pub struct DenoiseArgs {
     #[arg(long)]
     pub half: bool,
     /// Tile size in pixels for the streaming engine; 0 filters the whole frame in memory.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 512)]
     pub tile_size: usize,
     /// Memory limit (e.g. 512M, 4G): the streaming engine's budget, or the largest frame read whole
     /// with --tile-size 0; default: half of the available memory.

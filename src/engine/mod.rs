@@ -75,7 +75,7 @@ pub struct StreamOptions {
 impl Default for StreamOptions {
     fn default() -> Self {
         StreamOptions {
-            tile_size: 256,
+            tile_size: 512,
             threads: 0,
             memory_limit: budget::default_limit_bytes(),
             half: false,

@@ -17,7 +17,7 @@ use crate::geom::Rect;
 use crate::image::Plane;
 
 /// Block size of the internal schedule (does not change values).
-const BLOCK_W: usize = 256;
+const BLOCK_W: usize = 512;
 const BLOCK_H: usize = 64;
 
 /// Parameters of one NL-means pass.
