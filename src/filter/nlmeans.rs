@@ -438,17 +438,17 @@ fn run_group(
             for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
                 let ww = lane.w.width();
                 let wr = &mut scratch.wrow[..ww];
-                vertical_means(&buf.h1, cap, d_y.0, y, lane.valid, f, lane.w.x0, kd, wr);
+                let ny = vertical_sums(&buf.h1, cap, d_y.0, y, lane.valid, f, wr);
+                // The patch mean's scale (with `kd`) applied inside the weight's loop.
                 if !features {
-                    for v in wr.iter_mut() {
-                        *v = exp2_weight(*v);
-                    }
+                    map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |_, t| exp2_weight(t));
                 } else {
                     // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
                     let ri = (y - w_y.0) as usize;
-                    for (v, tf) in wr.iter_mut().zip(&buf.wfeat[ri * ww..(ri + 1) * ww]) {
-                        *v = exp2_weight(if *tf < *v { *tf } else { *v });
-                    }
+                    let tf = &buf.wfeat[ri * ww..(ri + 1) * ww];
+                    map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |i, t| {
+                        exp2_weight(if tf[i] < t { tf[i] } else { t })
+                    });
                 }
                 let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
                 window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * aw..(slot + 1) * aw]);
@@ -459,7 +459,12 @@ fn run_group(
                 next_a += 1;
                 for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
                     let aw = lane.acc.width();
-                    vertical_means(&buf.h2, cap, w_y.0, ya, lane.valid, f, lane.acc.x0, 1.0, &mut buf.mean_w[..aw]);
+                    // Mean weights times the full window's count: numerators
+                    // and denominator share the factor, and it is exactly 1
+                    // where the window is not clipped (no multiply there).
+                    let mw = &mut buf.mean_w[..aw];
+                    let ny = vertical_sums(&buf.h2, cap, w_y.0, ya, lane.valid, f, mw);
+                    scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                 }
                 let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
                     Some(lane) => LaneRow { w: &bufs[g].mean_w[..lane.acc.width()], x0: lane.acc.x0, dx: lane.dx },
@@ -603,25 +608,35 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
     }
 }
 
-/// Window means of row `y`: the vertical sums of the ring's rows over
-/// `[y - f, y + f] ∩ clip` (row `k` of the ring is frame row `ring_y0 + k`),
-/// scaled by `k / count` of each clipped window (columns from `x0`).
+/// Window sums of row `y`: the vertical sums of the ring's rows over
+/// `[y - f, y + f] ∩ clip` (row `k` of the ring is frame row `ring_y0 + k`);
+/// returns the window's height.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn vertical_means(
-    ring: &[f32],
-    cap: usize,
-    ring_y0: i64,
-    y: i64,
-    clip: Rect,
-    f: i64,
-    x0: i64,
-    k: f32,
-    out: &mut [f32],
-) {
+fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
     let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
     ring_column_sums(ring, out.len(), cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
-    scale_by_count(out, x0, clip, f, (b - a + 1) as f32, k);
+    (b - a + 1) as f32
+}
+
+/// `row[i] = map(i, row[i] * k / (nx * ny))`, the window sums of a row turned
+/// into scaled means (as [`scale_by_count`]) and mapped in the same pass.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn map_scaled(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32, map: impl Fn(usize, f32) -> f32) {
+    let x1 = x0 + row.len() as i64;
+    let inner_x0 = (clip.x0 + f).clamp(x0, x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
+    let inner = k / ((2 * f + 1) as f32 * ny);
+    let (i0, i1) = ((inner_x0 - x0) as usize, (inner_x1 - x0) as usize);
+    for (i, v) in row[i0..i1].iter_mut().enumerate() {
+        *v = map(i0 + i, *v * inner);
+    }
+    for x in (x0..inner_x0).chain(inner_x1..x1) {
+        let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
+        let i = (x - x0) as usize;
+        row[i] = map(i, row[i] * (k / (nx * ny)));
+    }
 }
 
 /// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
@@ -780,8 +795,11 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
     let inner_x0 = (clip.x0 + f).clamp(x0, x1);
     let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
     let inner = k / ((2 * f + 1) as f32 * ny);
-    for v in &mut row[(inner_x0 - x0) as usize..(inner_x1 - x0) as usize] {
-        *v *= inner;
+    // Multiplying by exactly 1 changes no bit: skipped.
+    if inner != 1.0 {
+        for v in &mut row[(inner_x0 - x0) as usize..(inner_x1 - x0) as usize] {
+            *v *= inner;
+        }
     }
     for x in (x0..inner_x0).chain(inner_x1..x1) {
         let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
