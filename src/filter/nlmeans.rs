@@ -18,7 +18,7 @@ use crate::image::Plane;
 
 /// Block size of the internal schedule (does not change values).
 const BLOCK_W: usize = 512;
-const BLOCK_H: usize = 64;
+const BLOCK_H: usize = 128;
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
