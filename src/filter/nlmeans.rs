@@ -128,21 +128,30 @@ tier_wrapper!(filter_block_avx512, "avx512f");
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
 ///
-/// For each offset, three passes over the block, interleaved row by row so
-/// that no block-sized intermediate exists:
+/// The offsets are visited as [`offset_schedule`] lists them: the centre,
+/// then groups of up to [`GROUP_MAX`] offsets `n` sharing `dy >= 0`, each
+/// followed by the group of their mirrors `-n`. For a group, the distances of
+/// `n` and `-n` are computed together (their common terms once, see
+/// [`kernels::colour_distance_pair_rgb`](super::kernels::colour_distance_pair_rgb)):
+/// the forward lanes use them at once, the mirror distances are stored in one
+/// plane per pair and read when the mirror group runs.
 ///
-/// 1. per row of `d_rect`: the per-pixel distance into a row buffer, then its
-///    horizontal window sums into the ring `h1` (columns of `w_rect`);
+/// For each lane (offset) of a group, three passes over the block,
+/// interleaved row by row so that no block-sized intermediate exists:
+///
+/// 1. per row of `d_rect`: the per-pixel distance (summed over channels) and
+///    its horizontal window sums into the ring `h1` (columns of `w_rect`);
 /// 2. per row of `w_rect`, as soon as its window of `h1` rows is complete: the
-///    vertical sum, scaled by the window's `1 / count` (the patch distance),
-///    the weight, then its horizontal window sums into the ring `h2`
-///    (columns of `acc_rect`);
+///    vertical sum, scaled by `-log2(e) / (channels count)` inside the
+///    weight's loop (`t`, then `2^min(t, t_f)`), then its horizontal window
+///    sums into the ring `h2` (columns of `acc_rect`);
 /// 3. per row of `acc_rect`, as soon as its window of `h2` rows is complete:
-///    the vertical sum, scaled (the mean weight), accumulated into the
-///    numerators and the denominator.
+///    the vertical sum times `(2f + 1)^2 / count` (exactly 1, so skipped,
+///    away from the borders), and one fused pass accumulating every lane
+///    into the numerators and the denominator.
 ///
 /// A vertical window never reaches more than `2f` rows back, so each ring
-/// holds `2f + 1` rows and stays in L1.
+/// holds `2f + 1` rows.
 ///
 /// Every window sum starts from its first sample and adds the others in
 /// increasing frame coordinate, over the window clipped to the offset's valid
