@@ -159,39 +159,14 @@ pub fn box_mean(
     }
 }
 
-/// Accumulate one channel's non-uniform-variance distance (SPEC §2) for a row:
-/// `acc[i] += ((up - uq)^2 - alpha (vp + min(vp, vq))) / (eps + k2 (vp + vq))`.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub fn accumulate_colour_distance(
-    acc: &mut [f32],
-    up: &[f32],
-    uq: &[f32],
-    vp: &[f32],
-    vq: &[f32],
-    alpha: f32,
-    eps: f32,
-    k2: f32,
-) {
-    let n = acc.len();
-    let (up, uq, vp, vq) = (&up[..n], &uq[..n], &vp[..n], &vq[..n]);
-    for i in 0..n {
-        let d = up[i] - uq[i];
-        let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
-        let num = d * d - alpha * (vp[i] + m);
-        let den = eps + k2 * (vp[i] + vq[i]);
-        acc[i] += num * recip(den);
-    }
-}
-
-/// Both distances of a pair of offsets for a row, sharing their common terms:
-/// `fwd[i] += d2_c(p, p + n)` and `mir[i] += d2_c(p + n, p)` (the distance of
-/// pixel `p + n` for offset `-n`), with `up = u(p)`, `uq = u(p + n)`.
-///
-/// `fwd` gets exactly the operations of [`accumulate_colour_distance`]; `mir`
-/// the same with the roles of `vp` and `vq` swapped (the squared difference,
-/// the minimum, the denominator's sum and its reciprocal are symmetric and
-/// computed once).
+/// One channel's non-uniform-variance distance (SPEC §2) for a row, for a
+/// pair of offsets at once:
+/// `fwd[i] += ((up - uq)^2 - alpha (vp + min(vp, vq))) / (eps + k2 (vp + vq))`,
+/// which is `d2_c(p, p + n)` with `up = u(p)`, `uq = u(p + n)`, and `mir[i]`
+/// the same with the roles of `vp` and `vq` swapped, `d2_c(p + n, p)`: the
+/// distance of pixel `p + n` for offset `-n`. The squared difference, the
+/// minimum, the denominator's sum and its reciprocal are symmetric and
+/// computed once; the division is a multiplication by [`recip`].
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn accumulate_colour_distance_pair(

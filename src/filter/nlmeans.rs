@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    accumulate_colour_distance, accumulate_colour_distance_pair, accumulate_feature_distance, colour_distance_pair_rgb,
-    exp2_weight, log2_distance_scale,
+    accumulate_colour_distance_pair, accumulate_feature_distance, colour_distance_pair_rgb, exp2_weight,
+    log2_distance_scale,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -190,7 +190,11 @@ fn filter_block_body(
     // `outer` widened by `r` in both directions.
     let plane_len = (outer.width() + s.search_radius) * (outer.height() + s.search_radius);
     let mut mirror_planes: Vec<Vec<f32>> = (0..GROUP_MAX).map(|_| vec![0.0f32; plane_len]).collect();
-    let mut scratch = Scratch { drow: vec![0.0f32; outer.width() + s.search_radius], wrow: vec![0.0f32; mid.width()] };
+    let mut scratch = Scratch {
+        drow: vec![0.0f32; outer.width() + s.search_radius],
+        mrow: vec![0.0f32; outer.width()],
+        wrow: vec![0.0f32; mid.width()],
+    };
     let mut phi = Vec::with_capacity(mid.width());
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
@@ -310,6 +314,8 @@ struct GroupCtx<'a, 'j> {
 /// Row buffers shared by every group of a block.
 struct Scratch {
     drow: Vec<f32>,
+    /// The discarded mirror row of [`Source::Direct`].
+    mrow: Vec<f32>,
     wrow: Vec<f32>,
 }
 
@@ -367,21 +373,10 @@ fn run_group(
         match source {
             Source::Direct => {
                 for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
-                    let (d_rect, dx) = (lane.d, lane.dx);
-                    let d = &mut scratch.drow[..d_rect.width()];
-                    d.fill(0.0);
-                    for (u, v) in job.values.iter().zip(&job.variance) {
-                        accumulate_colour_distance(
-                            d,
-                            u.row(yd, d_rect.x0, d_rect.x1),
-                            u.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            v.row(yd, d_rect.x0, d_rect.x1),
-                            v.row(yd + dy, d_rect.x0 + dx, d_rect.x1 + dx),
-                            s.alpha,
-                            s.eps,
-                            k2,
-                        );
-                    }
+                    let (d_rect, w) = (lane.d, lane.d.width());
+                    // The pair kernel with its mirror row discarded.
+                    let (d, m) = (&mut scratch.drow[..w], &mut scratch.mrow[..w]);
+                    distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
                     push_h1(lane, buf, d, d_rect.x0, yd - d_y.0, f, cap);
                 }
             }
@@ -392,37 +387,7 @@ fn run_group(
                     let ri = (yd - u_rect.y0) as usize;
                     // The mirror row goes straight into its plane.
                     let (d, m) = (&mut scratch.drow[..w], &mut planes[k][ri * w..(ri + 1) * w]);
-                    fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
-                        p.row(y, x.0 + dx, x.1 + dx)
-                    }
-                    let ux = (u_rect.x0, u_rect.x1);
-                    if let ([u0, u1, u2], [v0, v1, v2]) = (&job.values[..], &job.variance[..]) {
-                        colour_distance_pair_rgb(
-                            d,
-                            m,
-                            [shifted(u0, yd, ux, 0), shifted(u1, yd, ux, 0), shifted(u2, yd, ux, 0)],
-                            [shifted(u0, yd + dy, ux, dx), shifted(u1, yd + dy, ux, dx), shifted(u2, yd + dy, ux, dx)],
-                            [shifted(v0, yd, ux, 0), shifted(v1, yd, ux, 0), shifted(v2, yd, ux, 0)],
-                            [shifted(v0, yd + dy, ux, dx), shifted(v1, yd + dy, ux, dx), shifted(v2, yd + dy, ux, dx)],
-                            (s.alpha, s.eps, k2),
-                        );
-                    } else {
-                        d.fill(0.0);
-                        m.fill(0.0);
-                        for (u, v) in job.values.iter().zip(&job.variance) {
-                            accumulate_colour_distance_pair(
-                                d,
-                                m,
-                                shifted(u, yd, ux, 0),
-                                shifted(u, yd + dy, ux, dx),
-                                shifted(v, yd, ux, 0),
-                                shifted(v, yd + dy, ux, dx),
-                                s.alpha,
-                                s.eps,
-                                k2,
-                            );
-                        }
-                    }
+                    distance_rows(job, d, m, yd, dy, (u_rect.x0, u_rect.x1), dx, s, k2);
                     if let Some(g) = pair.fwd
                         && (d_y.0..d_y.1).contains(&yd)
                     {
@@ -484,6 +449,57 @@ fn run_group(
         }
     }
     debug_assert!(next_w == w_y.1 && next_a == a_y.1);
+}
+
+/// The distances of row `y`, columns `x`, for offset `(dx, dy)` into `d` and
+/// for the mirror offset into `m` (pixel `p + (dx, dy)`), summed over the
+/// job's channels: `((0 + t_0) + t_1) + ...`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn distance_rows(
+    job: &Job<'_>,
+    d: &mut [f32],
+    m: &mut [f32],
+    y: i64,
+    dy: i64,
+    x: (i64, i64),
+    dx: i64,
+    s: &NlmSettings,
+    k2: f32,
+) {
+    if let ([u0, u1, u2], [v0, v1, v2]) = (&job.values[..], &job.variance[..]) {
+        colour_distance_pair_rgb(
+            d,
+            m,
+            [shifted(u0, y, x, 0), shifted(u1, y, x, 0), shifted(u2, y, x, 0)],
+            [shifted(u0, y + dy, x, dx), shifted(u1, y + dy, x, dx), shifted(u2, y + dy, x, dx)],
+            [shifted(v0, y, x, 0), shifted(v1, y, x, 0), shifted(v2, y, x, 0)],
+            [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)],
+            (s.alpha, s.eps, k2),
+        );
+    } else {
+        d.fill(0.0);
+        m.fill(0.0);
+        for (u, v) in job.values.iter().zip(&job.variance) {
+            accumulate_colour_distance_pair(
+                d,
+                m,
+                shifted(u, y, x, 0),
+                shifted(u, y + dy, x, dx),
+                shifted(v, y, x, 0),
+                shifted(v, y + dy, x, dx),
+                s.alpha,
+                s.eps,
+                k2,
+            );
+        }
+    }
+}
+
+/// Row `y` of `p` over columns `x` shifted by `dx`.
+#[inline(always)]
+fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
+    p.row(y, x.0 + dx, x.1 + dx)
 }
 
 /// Push a lane's distance row `d` (frame row `d_y0 + ri`, columns from `x0`)
