@@ -23,7 +23,7 @@ pub struct InfoArgs {
     #[arg(long)]
     pub plan: bool,
     /// Tile size the streaming schedule starts from.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 512)]
     pub tile_size: usize,
     /// Memory limit for the streaming schedule (default: half of the available memory).
     #[arg(long, value_parser = budget::parse_size)]

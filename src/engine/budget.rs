@@ -19,6 +19,7 @@
 //! * a fixed allowance for the program, thread stacks and allocator slack.
 
 use crate::error::Error;
+use crate::filter::nlmeans::ScratchShape;
 
 /// Fixed allowance for code, stacks and allocator slack (the binary's own
 /// peak on a tiny frame is about 11 MiB).
@@ -51,6 +52,8 @@ pub struct BudgetInput {
     pub out_block_rows: usize,
     /// Worker threads.
     pub threads: usize,
+    /// What sizes the filter kernel's working memory (per thread).
+    pub kernel: ScratchShape,
 }
 
 /// The chosen schedule.
@@ -87,7 +90,9 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     // The reader: blocks being decompressed and decoded, one per thread, twice
     // (raw bytes and samples).
     let decoding = b.threads as u64 * 2 * w * b.block_rows as u64 * b.bytes_all as u64;
-    BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding
+    // The kernel's blocks: one per thread at a time.
+    let kernel = b.threads as u64 * b.kernel.bytes(tile as usize, band_rows);
+    BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding + kernel
 }
 
 /// The largest tiles (at most `tile_size`) that fit in `limit_bytes`.
@@ -193,6 +198,7 @@ mod tests {
             block_rows: 16,
             out_block_rows: 16,
             threads: 2,
+            kernel: ScratchShape { search_radius: 10, patch_radius: 3, accumulators: 8, guided: true },
         }
     }
 

@@ -22,6 +22,7 @@ use tracing::{debug, info, info_span};
 
 use crate::error::Error;
 use crate::exrio::roles::ChannelRoles;
+use crate::filter::nlmeans::ScratchShape;
 use crate::filter::{self, Params, Pipeline};
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Plane, Samples};
@@ -174,7 +175,7 @@ fn plan_with(
     let channels = source.channel_names().len();
     let sample_bytes = source.sample_bytes();
     let shape = roles.shape();
-    let halo = Pipeline::new(*params, shape).halo();
+    let halo = Pipeline::new(*params, shape.clone()).halo();
     let threads =
         if opts.threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { opts.threads };
     let plan = budget::plan(
@@ -191,6 +192,13 @@ fn plan_with(
             block_rows: source.block_rows(),
             out_block_rows: opts.out_block_rows,
             threads,
+            kernel: ScratchShape {
+                search_radius: params.search_radius,
+                patch_radius: params.patch_radius,
+                // Every denoised channel's numerator, one denominator per job.
+                accumulators: cp.output_idx.len() + shape.layers.max(1),
+                guided: !shape.feature_has_variance.is_empty(),
+            },
         },
         opts.tile_size,
         opts.memory_limit,

@@ -86,6 +86,38 @@ pub fn nlmeans(
     outputs
 }
 
+/// What sizes the kernel's working memory (see [`ScratchShape::bytes`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ScratchShape {
+    /// Search radius `r`.
+    pub search_radius: usize,
+    /// Patch radius `f`.
+    pub patch_radius: usize,
+    /// Numerator and denominator planes of all jobs (at least).
+    pub accumulators: usize,
+    /// Whether guide features are used.
+    pub guided: bool,
+}
+
+impl ScratchShape {
+    /// Bytes of working memory one block of the kernel holds while it runs
+    /// (one block per worker thread at a time), for a region of
+    /// `width x height`: the numerators and denominators, the lanes' rings and
+    /// rows, the guides' weight planes, and the stored mirror distances.
+    /// Independent of the frame size.
+    pub fn bytes(&self, width: usize, height: usize) -> u64 {
+        let (bw, bh) = (width.clamp(1, BLOCK_W) as u64, height.clamp(1, BLOCK_H) as u64);
+        let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
+        let (outer_w, outer_h) = (bw + 4 * f, bh + 4 * f);
+        let lanes = 2 * GROUP_MAX as u64;
+        let rings = lanes * ((2 * f + 1) * (bw + 2 * f + bw) + bw);
+        let guides = if self.guided { lanes * (bw + 2 * f) * (bh + 2 * f) } else { 0 };
+        let mirror = GROUP_MAX as u64 * (outer_w + r) * (outer_h + r);
+        let rows = 2 * (outer_w + r) + bw + 2 * f;
+        4 * (self.accumulators as u64 * bw * bh + rings + guides + mirror + rows)
+    }
+}
+
 /// Filter one block with the kernel compiled for the current [`simd::Tier`].
 fn filter_block(
     jobs: &[Job<'_>],
