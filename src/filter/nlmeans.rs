@@ -755,6 +755,8 @@ fn accumulate(
     }
     if c1 > c0 {
         let span = row_off + (c0 - block.x0) as usize..row_off + (c1 - block.x0) as usize;
+        // One arm per group size: GROUP_MAX must stay 4 for this match.
+        const _: () = assert!(GROUP_MAX == 4);
         match rows.len() {
             1 => accumulate_span::<1>(num, den, values, rows, (y, dy), c0, c1, span),
             2 => accumulate_span::<2>(num, den, values, rows, (y, dy), c0, c1, span),
