@@ -681,19 +681,33 @@ fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn map_scaled(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32, map: impl Fn(usize, f32) -> f32) {
-    let x1 = x0 + row.len() as i64;
-    let inner_x0 = (clip.x0 + f).clamp(x0, x1);
-    let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
+    let (unclipped, clipped) = window_columns(x0, row.len(), clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
-    let (i0, i1) = ((inner_x0 - x0) as usize, (inner_x1 - x0) as usize);
-    for (i, v) in row[i0..i1].iter_mut().enumerate() {
-        *v = map(i0 + i, *v * inner);
+    for i in unclipped {
+        row[i] = map(i, row[i] * inner);
     }
-    for x in (x0..inner_x0).chain(inner_x1..x1) {
-        let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
-        let i = (x - x0) as usize;
+    for (i, nx) in clipped {
         row[i] = map(i, row[i] * (k / (nx * ny)));
     }
+}
+
+/// The columns `x0..x0 + len` split by their window `[x - f, x + f] ∩ clip`:
+/// the index range of the columns whose window is whole, and each other
+/// column's index with its clipped window width.
+#[inline(always)]
+fn window_columns(
+    x0: i64,
+    len: usize,
+    clip: Rect,
+    f: i64,
+) -> (std::ops::Range<usize>, impl Iterator<Item = (usize, f32)>) {
+    let x1 = x0 + len as i64;
+    let inner_x0 = (clip.x0 + f).clamp(x0, x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
+    let clipped = (x0..inner_x0)
+        .chain(inner_x1..x1)
+        .map(move |x| ((x - x0) as usize, ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32));
+    ((inner_x0 - x0) as usize..(inner_x1 - x0) as usize, clipped)
 }
 
 /// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
@@ -850,19 +864,16 @@ fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
 /// row's window height; the factor is computed once per distinct count.
 #[inline(always)]
 fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32) {
-    let x1 = x0 + row.len() as i64;
-    let inner_x0 = (clip.x0 + f).clamp(x0, x1);
-    let inner_x1 = (clip.x1 - f).clamp(inner_x0, x1);
+    let (unclipped, clipped) = window_columns(x0, row.len(), clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
     // Multiplying by exactly 1 changes no bit: skipped.
     if inner != 1.0 {
-        for v in &mut row[(inner_x0 - x0) as usize..(inner_x1 - x0) as usize] {
+        for v in &mut row[unclipped] {
             *v *= inner;
         }
     }
-    for x in (x0..inner_x0).chain(inner_x1..x1) {
-        let nx = ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32;
-        row[(x - x0) as usize] *= k / (nx * ny);
+    for (i, nx) in clipped {
+        row[i] *= k / (nx * ny);
     }
 }
 
