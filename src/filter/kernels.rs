@@ -4,8 +4,9 @@
 //! Bit-exactness rules (SPEC §6) live here: every output sample is computed by
 //! the same sequence of operations whatever region is being evaluated — window
 //! sums start at `0.0` and add samples in increasing frame coordinate, counts
-//! come from frame-defined clip rectangles, `exp` is our own polynomial, and no
-//! fused multiply-add is used anywhere.
+//! come from frame-defined clip rectangles, `exp` is our own polynomial, and
+//! every fused multiply-add is an explicit `f32::mul_add` (one rounding on
+//! every path, see [`super::simd`]), never a contraction left to the compiler.
 
 use crate::geom::Rect;
 
@@ -15,8 +16,9 @@ use crate::geom::Rect;
 ///
 /// `2^t = 2^n 2^f` with `n = round(t)` (read from the mantissa bits after
 /// adding `1.5 * 2^23`), `f = t - n` in `[-0.5, 0.5]`, and `2^f` from a
-/// degree-5 polynomial fitted for relative error (with `p(0) = 1`). Pure
-/// `f32` add/mul, no FMA, no libm: the same bits on every platform and path.
+/// degree-5 polynomial fitted for relative error (with `p(0) = 1`),
+/// evaluated by Horner's rule with fused multiply-adds. Pure `f32`
+/// arithmetic, no libm `exp`: the same bits on every platform and path.
 /// The result is always a
 /// normal number in `[2^-126, 1]`; its relative error against `2^t` is below
 /// 3e-7 on `[-126, 0]` (tested below).
@@ -35,14 +37,14 @@ pub fn exp2_weight(t: f32) -> f32 {
     let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
     // Constant term exactly 1: integer `t` give exact powers of two.
     let mut p = 1.326_470_2e-3_f32;
-    p = p * f + 9.671_505e-3;
-    p = p * f + 5.550_733_6e-2;
-    p = p * f + 2.402_224_2e-1;
+    p = p.mul_add(f, 9.671_505e-3);
+    p = p.mul_add(f, 5.550_733_6e-2);
+    p = p.mul_add(f, 2.402_224_2e-1);
     // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
     #[allow(clippy::approx_constant)]
     let c1 = 0.693_147_f32;
-    p = p * f + c1;
-    p = p * f + 1.0;
+    p = p.mul_add(f, c1);
+    p = p.mul_add(f, 1.0);
     p * f32::from_bits(((ni + 127) as u32) << 23)
 }
 
@@ -55,16 +57,17 @@ pub fn log2_distance_scale(channels: usize) -> f32 {
 /// `1 / x` for normal positive `x` in `[1e-30, 1e37]`, from add/mul only.
 ///
 /// A bit-level first guess (`0x7EF311C3 - bits(x)`, within 12.5 %) refined by
-/// three Newton steps `y (2 - x y)`, each squaring the relative error: the
-/// result is within 2.5e-7 of `1 / x` (tested in `tests`). Unlike a division
-/// it vectorises at the full add/mul rate (a division costs 5-10 times more
-/// per lane), and unlike `rcpps` it gives the same bits on every path.
+/// three Newton steps `y + y (1 - x y)` (two fused multiply-adds each), each
+/// squaring the relative error: the result is within 2.5e-7 of `1 / x`
+/// (tested in `tests`). Unlike a division it vectorises at the full FMA rate
+/// (a division costs 5-10 times more per lane), and unlike `rcpps` it gives
+/// the same bits on every path.
 #[inline(always)]
 pub fn recip(x: f32) -> f32 {
     let mut y = f32::from_bits(0x7EF3_11C3u32.wrapping_sub(x.to_bits()));
-    y = y * (2.0 - x * y);
-    y = y * (2.0 - x * y);
-    y * (2.0 - x * y)
+    y = y.mul_add((-x).mul_add(y, 1.0), y);
+    y = y.mul_add((-x).mul_add(y, 1.0), y);
+    y.mul_add((-x).mul_add(y, 1.0), y)
 }
 
 /// Box mean of radius `radius` of `src`, evaluated on `dst_rect`.
@@ -166,7 +169,8 @@ pub fn box_mean(
 /// the same with the roles of `vp` and `vq` swapped, `d2_c(p + n, p)`: the
 /// distance of pixel `p + n` for offset `-n`. The squared difference, the
 /// minimum, the denominator's sum and its reciprocal are symmetric and
-/// computed once; the division is a multiplication by [`recip`].
+/// computed once; the division is a multiplication by [`recip`], and both the
+/// variance term's subtraction and the accumulation are fused multiply-adds.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn accumulate_colour_distance_pair(
@@ -186,9 +190,9 @@ pub fn accumulate_colour_distance_pair(
         let d = up[i] - uq[i];
         let d2 = d * d;
         let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
-        let r = recip(eps + k2 * (vp[i] + vq[i]));
-        fwd[i] += (d2 - alpha * (vp[i] + m)) * r;
-        mir[i] += (d2 - alpha * (vq[i] + m)) * r;
+        let r = recip(k2.mul_add(vp[i] + vq[i], eps));
+        fwd[i] = (-alpha).mul_add(vp[i] + m, d2).mul_add(r, fwd[i]);
+        mir[i] = (-alpha).mul_add(vq[i] + m, d2).mul_add(r, mir[i]);
     }
 }
 
@@ -215,9 +219,9 @@ pub fn colour_distance_pair_rgb(
             let d = up[c][i] - uq[c][i];
             let d2 = d * d;
             let m = if vq[c][i] < vp[c][i] { vq[c][i] } else { vp[c][i] };
-            let r = recip(eps + k2 * (vp[c][i] + vq[c][i]));
-            a += (d2 - alpha * (vp[c][i] + m)) * r;
-            b += (d2 - alpha * (vq[c][i] + m)) * r;
+            let r = recip(k2.mul_add(vp[c][i] + vq[c][i], eps));
+            a = (-alpha).mul_add(vp[c][i] + m, d2).mul_add(r, a);
+            b = (-alpha).mul_add(vq[c][i] + m, d2).mul_add(r, b);
         }
         fwd[i] = a;
         mir[i] = b;
@@ -244,13 +248,13 @@ pub fn accumulate_feature_distance(
             for i in 0..n {
                 let d = fp[i] - fq[i];
                 let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
-                acc[i] += (d * d - (vp[i] + m)) * inv_den[i];
+                acc[i] = d.mul_add(d, -(vp[i] + m)).mul_add(inv_den[i], acc[i]);
             }
         }
         None => {
             for i in 0..n {
                 let d = fp[i] - fq[i];
-                acc[i] += (d * d) * inv_den[i];
+                acc[i] = (d * d).mul_add(inv_den[i], acc[i]);
             }
         }
     }

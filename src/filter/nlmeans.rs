@@ -154,8 +154,8 @@ macro_rules! tier_wrapper {
     };
 }
 
-tier_wrapper!(filter_block_avx2, "avx2");
-tier_wrapper!(filter_block_avx512, "avx512f");
+tier_wrapper!(filter_block_avx2, "avx2,fma");
+tier_wrapper!(filter_block_avx512, "avx512f,fma");
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
@@ -763,7 +763,7 @@ fn accumulate(
             let w = l.w[(x - l.x0) as usize];
             den[i] += w;
             for (c, n) in num.iter_mut().enumerate() {
-                n[i] += w * values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0];
+                n[i] = w.mul_add(values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0], n[i]);
             }
         }
     }
@@ -815,7 +815,7 @@ fn accumulate_span<const G: usize>(
             for i in 0..n {
                 let mut a = nc[i];
                 for g in 0..G {
-                    a += w[g][i] * qc[g][i];
+                    a = w[g][i].mul_add(qc[g][i], a);
                 }
                 nc[i] = a;
             }
@@ -838,9 +838,9 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
         for g in 0..G {
             let wg = w[g][i];
             dd += wg;
-            a0 += wg * q0[g][i];
-            a1 += wg * q1[g][i];
-            a2 += wg * q2[g][i];
+            a0 = wg.mul_add(q0[g][i], a0);
+            a1 = wg.mul_add(q1[g][i], a1);
+            a2 = wg.mul_add(q2[g][i], a2);
         }
         (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
     }

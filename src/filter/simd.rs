@@ -4,8 +4,13 @@
 //! Every tier compiles the *same* Rust code (`nlmeans::filter_block_body`)
 //! with a different set of target features, so every pixel gets the same
 //! IEEE operations in the same order whichever tier or lane computes it: the
-//! wider tiers only put more pixels in a register. `fma` is never enabled and
-//! Rust never contracts `a * b + c` on its own, so no tier fuses. Results are
+//! wider tiers only put more pixels in a register. The kernel's fused
+//! multiply-adds are written as `f32::mul_add`, one correctly rounded
+//! operation on every tier: the AVX2 and AVX-512 tiers are compiled with
+//! `fma` (and require it), the portable tier calls the target's fused
+//! instruction where its baseline has one (aarch64) and libm's `fmaf`
+//! otherwise (x86-64 without FMA, much slower: it is a call per operation).
+//! Rust never contracts a separate `a * b + c` on its own. Results are
 //! therefore bit-identical across tiers (tested with each tier forced).
 //!
 //! The tier is the best the CPU supports, unless `NLDENOISE_SIMD=portable`,
@@ -35,9 +40,11 @@ impl Tier {
         match self {
             Tier::Portable => true,
             #[cfg(target_arch = "x86_64")]
-            Tier::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            Tier::Avx2 => std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"),
             #[cfg(target_arch = "x86_64")]
-            Tier::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            Tier::Avx512 => {
+                std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma")
+            }
             #[cfg(not(target_arch = "x86_64"))]
             _ => false,
         }

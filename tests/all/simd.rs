@@ -1,5 +1,6 @@
 //! Every instruction-set tier computes the same bits (SPEC §6): the tiers
-//! compile the same code with wider registers and never fuse multiply-adds.
+//! compile the same code with wider registers, and every fused multiply-add
+//! is one correctly rounded operation on each of them.
 
 use nldenoise::filter::{self, simd};
 use nldenoise::geom::Rect;
