@@ -201,8 +201,9 @@ fn filter_block_body(
     let f = s.patch_radius as i64;
     let k2 = s.strength * s.strength;
     let area = block.area();
-    let mut num: Vec<Vec<Vec<f32>>> = jobs.iter().map(|j| vec![vec![0.0f32; area]; j.values.len()]).collect();
-    let mut den: Vec<Vec<f32>> = jobs.iter().map(|_| vec![0.0f32; area]).collect();
+    let mut num: Vec<Vec<Aligned>> =
+        jobs.iter().map(|j| j.values.iter().map(|_| Aligned::zeroed(area)).collect()).collect();
+    let mut den: Vec<Aligned> = jobs.iter().map(|_| Aligned::zeroed(area)).collect();
 
     let outer = block.expand(2 * s.patch_radius);
     let mid = block.expand(s.patch_radius);
@@ -212,9 +213,9 @@ fn filter_block_body(
     // Forward lanes use buffers 0..GROUP_MAX, mirror lanes the next GROUP_MAX.
     let mut lanes: Vec<LaneBuffers> = (0..2 * GROUP_MAX)
         .map(|_| LaneBuffers {
-            h1: vec![0.0f32; mid.width() * cap],
-            h2: vec![0.0f32; block.width() * cap],
-            mean_w: vec![0.0f32; block.width()],
+            h1: Aligned::zeroed(stride(mid.width()) * cap),
+            h2: Aligned::zeroed(stride(block.width()) * cap),
+            mean_w: Aligned::zeroed(block.width()),
             wfeat: if features.is_empty() { Vec::new() } else { vec![0.0f32; mid.area()] },
         })
         .collect();
@@ -223,9 +224,9 @@ fn filter_block_body(
     let plane_len = (outer.width() + s.search_radius) * (outer.height() + s.search_radius);
     let mut mirror_planes: Vec<Vec<f32>> = (0..GROUP_MAX).map(|_| vec![0.0f32; plane_len]).collect();
     let mut scratch = Scratch {
-        drow: vec![0.0f32; outer.width() + s.search_radius],
+        drow: Aligned::zeroed(outer.width() + s.search_radius),
         mrow: vec![0.0f32; outer.width()],
-        wrow: vec![0.0f32; mid.width()],
+        wrow: Aligned::zeroed(mid.width()),
     };
     let mut phi = Vec::with_capacity(mid.width());
     let geometry = |dx: i64, dy: i64| {
@@ -320,10 +321,10 @@ fn filter_block_body(
             chans
                 .into_iter()
                 .map(|mut n| {
-                    for (v, d) in n.iter_mut().zip(&den) {
+                    for (v, d) in n.iter_mut().zip(den.iter()) {
                         *v /= *d;
                     }
-                    Plane::from_vec(block, n).expect("block-sized buffer")
+                    Plane::from_vec(block, n.to_vec()).expect("block-sized buffer")
                 })
                 .collect()
         })
@@ -345,10 +346,10 @@ struct GroupCtx<'a, 'j> {
 
 /// Row buffers shared by every group of a block.
 struct Scratch {
-    drow: Vec<f32>,
+    drow: Aligned,
     /// The discarded mirror row of [`Source::Direct`].
     mrow: Vec<f32>,
-    wrow: Vec<f32>,
+    wrow: Aligned,
 }
 
 /// One pair of offsets `n = (dx, dy)` and `-n`.
@@ -378,7 +379,7 @@ enum Source<'a> {
 #[inline(always)]
 fn run_group(
     ctx: &GroupCtx<'_, '_>,
-    num: &mut [Vec<f32>],
+    num: &mut [Aligned],
     den: &mut [f32],
     group: &[Lane],
     bufs: &mut [LaneBuffers],
@@ -456,8 +457,8 @@ fn run_group(
                         exp2_weight(if tf[i] < t { tf[i] } else { t })
                     });
                 }
-                let (slot, aw) = ((y - w_y.0) as usize % cap, lane.acc.width());
-                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * aw..(slot + 1) * aw]);
+                let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), stride(block.width()));
+                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * st..slot * st + aw]);
             }
             // 3. Mean weights of every lane, accumulated in one pass.
             while next_a < a_y.1 && last_row(next_a) <= y {
@@ -539,7 +540,8 @@ fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
 #[inline(always)]
 fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i64, cap: usize) {
     let (slot, ww) = (ri as usize % cap, lane.w.width());
-    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * ww..(slot + 1) * ww]);
+    let st = buf.h1.len() / cap;
+    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww]);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -595,11 +597,46 @@ impl Lane {
     const EMPTY: Lane = Lane { dx: 0, valid: Rect::EMPTY, d: Rect::EMPTY, w: Rect::EMPTY, acc: Rect::EMPTY };
 }
 
+/// Ring slots `stride(width)` samples apart start on a cache line (with
+/// [`Aligned`] storage): whole-vector loads and stores never straddle two.
+fn stride(width: usize) -> usize {
+    width.next_multiple_of(16)
+}
+
+/// A zeroed `f32` buffer whose first sample starts a 64-byte cache line (an
+/// AVX-512 vector), so that rows [`stride`] apart each start a line.
+struct Aligned {
+    data: Vec<f32>,
+    off: usize,
+    len: usize,
+}
+
+impl Aligned {
+    fn zeroed(len: usize) -> Aligned {
+        let data = vec![0.0f32; len + 15];
+        let off = data.as_ptr().align_offset(64);
+        Aligned { off: if off < 16 { off } else { 0 }, data, len }
+    }
+}
+
+impl std::ops::Deref for Aligned {
+    type Target = [f32];
+    fn deref(&self) -> &[f32] {
+        &self.data[self.off..self.off + self.len]
+    }
+}
+
+impl std::ops::DerefMut for Aligned {
+    fn deref_mut(&mut self) -> &mut [f32] {
+        &mut self.data[self.off..self.off + self.len]
+    }
+}
+
 /// The working rows of one lane.
 struct LaneBuffers {
-    h1: Vec<f32>,
-    h2: Vec<f32>,
-    mean_w: Vec<f32>,
+    h1: Aligned,
+    h2: Aligned,
+    mean_w: Aligned,
     wfeat: Vec<f32>,
 }
 
@@ -672,7 +709,7 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
 #[allow(clippy::too_many_arguments)]
 fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
     let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
-    ring_column_sums(ring, out.len(), cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
+    ring_column_sums(ring, ring.len() / cap, cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
     (b - a + 1) as f32
 }
 
@@ -711,12 +748,14 @@ fn window_columns(
 }
 
 /// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
-/// order), where row `k` of width `w` is stored in slot `k % cap` of `ring`.
+/// order), where row `k` is stored in slot `k % cap` of `ring`, slots
+/// `stride` samples apart.
 #[inline(always)]
-fn ring_column_sums(ring: &[f32], w: usize, cap: usize, first: usize, count: usize, out: &mut [f32]) {
+fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: usize, count: usize, out: &mut [f32]) {
+    let w = out.len();
     let row = |i: usize| {
         let slot = (first + i) % cap;
-        &ring[slot * w..(slot + 1) * w]
+        &ring[slot * stride..slot * stride + w]
     };
     match count {
         3 => rows_sum::<3>(std::array::from_fn(row), out),
@@ -742,7 +781,7 @@ fn ring_column_sums(ring: &[f32], w: usize, cap: usize, first: usize, count: usi
 /// offsets one after the other.
 #[inline(always)]
 fn accumulate(
-    num: &mut [Vec<f32>],
+    num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
     rows: &[LaneRow<'_>],
@@ -784,7 +823,7 @@ fn accumulate(
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn accumulate_span<const G: usize>(
-    num: &mut [Vec<f32>],
+    num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
     rows: &[LaneRow<'_>],
