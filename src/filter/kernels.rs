@@ -2,8 +2,9 @@
 //! clipped to a frame-defined rectangle, and per-row distance kernels.
 //!
 //! Bit-exactness rules (SPEC §6) live here: every output sample is computed by
-//! the same sequence of operations whatever region is being evaluated — window
-//! sums start at `0.0` and add samples in increasing frame coordinate, counts
+//! the same sequence of operations whatever region is being evaluated — each
+//! window sum is a fixed expression of its samples (`box_mean` adds them in
+//! increasing frame coordinate), counts
 //! come from frame-defined clip rectangles, `exp` is our own polynomial, and
 //! every fused multiply-add is an explicit `f32::mul_add` (one rounding on
 //! every path, see [`super::simd`]), never a contraction left to the compiler.

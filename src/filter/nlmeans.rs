@@ -185,10 +185,14 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 /// A vertical window never reaches more than `2f` rows back, so each ring
 /// holds `2f + 1` rows.
 ///
-/// Every window sum starts from its first sample and adds the others in
-/// increasing frame coordinate, over the window clipped to the offset's valid
-/// rectangle (a function of the frame): the same operations for a pixel
-/// whichever block, tile or lane computes it.
+/// Every window sum is one fixed expression of the window's samples, over
+/// the window clipped to the offset's valid rectangle (a function of the
+/// frame): horizontal sums start from the first sample and add the others in
+/// increasing x; vertical sums of a whole window add the pair sums of rows
+/// `(a, a + 1), (a + 2, a + 3), ...` (kept in a second ring, see
+/// [`pair_window`]) then the last row, and clipped windows add their rows in
+/// increasing y. The same operations for a pixel whichever block, tile or
+/// lane computes it.
 #[inline(always)]
 fn filter_block_body(
     jobs: &[Job<'_>],
@@ -215,6 +219,8 @@ fn filter_block_body(
         .map(|_| LaneBuffers {
             h1: Aligned::zeroed(stride(mid.width()) * cap),
             h2: Aligned::zeroed(stride(block.width()) * cap),
+            q1: Aligned::zeroed(stride(mid.width()) * cap),
+            q2: Aligned::zeroed(stride(block.width()) * cap),
             mean_w: Aligned::zeroed(block.width()),
             wfeat: if features.is_empty() { Vec::new() } else { vec![0.0f32; mid.area()] },
         })
@@ -445,7 +451,7 @@ fn run_group(
             for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
                 let ww = lane.w.width();
                 let wr = &mut scratch.wrow[..ww];
-                let ny = vertical_sums(&buf.h1, cap, d_y.0, y, lane.valid, f, wr);
+                let ny = vertical_sums((&buf.h1, &buf.q1), cap, d_y.0, y, lane.valid, f, wr);
                 // The patch mean's scale (with `kd`) applied inside the weight's loop.
                 if !features {
                     map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |_, t| exp2_weight(t));
@@ -459,6 +465,7 @@ fn run_group(
                 }
                 let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), stride(block.width()));
                 window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * st..slot * st + aw]);
+                pair_row(&buf.h2, &mut buf.q2, cap, (y - w_y.0) as usize, aw);
             }
             // 3. Mean weights of every lane, accumulated in one pass.
             while next_a < a_y.1 && last_row(next_a) <= y {
@@ -470,7 +477,7 @@ fn run_group(
                     // and denominator share the factor, and it is exactly 1
                     // where the window is not clipped (no multiply there).
                     let mw = &mut buf.mean_w[..aw];
-                    let ny = vertical_sums(&buf.h2, cap, w_y.0, ya, lane.valid, f, mw);
+                    let ny = vertical_sums((&buf.h2, &buf.q2), cap, w_y.0, ya, lane.valid, f, mw);
                     scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                 }
                 let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
@@ -542,6 +549,7 @@ fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i
     let (slot, ww) = (ri as usize % cap, lane.w.width());
     let st = buf.h1.len() / cap;
     window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww]);
+    pair_row(&buf.h1, &mut buf.q1, cap, ri as usize, ww);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -636,6 +644,9 @@ impl std::ops::DerefMut for Aligned {
 struct LaneBuffers {
     h1: Aligned,
     h2: Aligned,
+    /// Pair sums of consecutive ring rows, `q[k] = h[k - 1] + h[k]` (see [`pair_row`]).
+    q1: Aligned,
+    q2: Aligned,
     mean_w: Aligned,
     wfeat: Vec<f32>,
 }
@@ -707,10 +718,54 @@ fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
 /// returns the window's height.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
+fn vertical_sums(
+    (ring, pairs): (&[f32], &[f32]),
+    cap: usize,
+    ring_y0: i64,
+    y: i64,
+    clip: Rect,
+    f: i64,
+    out: &mut [f32],
+) -> f32 {
     let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
-    ring_column_sums(ring, ring.len() / cap, cap, (a - ring_y0) as usize, (b - a + 1) as usize, out);
-    (b - a + 1) as f32
+    let (first, count, st) = ((a - ring_y0) as usize, (b - a + 1) as usize, ring.len() / cap);
+    match (f, count) {
+        (1, 3) => pair_window::<2>((ring, pairs), cap, first, out),
+        (2, 5) => pair_window::<3>((ring, pairs), cap, first, out),
+        (3, 7) => pair_window::<4>((ring, pairs), cap, first, out),
+        (4, 9) => pair_window::<5>((ring, pairs), cap, first, out),
+        _ => ring_column_sums(ring, st, cap, first, count, out),
+    }
+    count as f32
+}
+
+/// The sum of a whole window of `2T - 1` ring rows from `first`, from the
+/// pair sums: `((pairs[first + 1] + pairs[first + 3]) + ...) + ring[first + 2T - 2]`
+/// (`T - 1` adds per sample instead of `2T - 2`, and about half the loads).
+#[inline(always)]
+fn pair_window<const T: usize>((ring, pairs): (&[f32], &[f32]), cap: usize, first: usize, out: &mut [f32]) {
+    let (st, w) = (ring.len() / cap, out.len());
+    let q: [&[f32]; T] = std::array::from_fn(|j| {
+        let (src, k) = if j + 1 < T { (pairs, first + 2 * j + 1) } else { (ring, first + 2 * j) };
+        let at = (k % cap) * st;
+        &src[at..at + w]
+    });
+    rows_sum::<T>(q, out)
+}
+
+/// After ring row `k` (`k >= 1`) was written: `pairs[k] = ring[k - 1] + ring[k]`
+/// over the first `w` columns.
+#[inline(always)]
+fn pair_row(ring: &[f32], pairs: &mut [f32], cap: usize, k: usize, w: usize) {
+    if k == 0 {
+        return;
+    }
+    let st = ring.len() / cap;
+    let (prev, cur) = (((k - 1) % cap) * st, (k % cap) * st);
+    let out = &mut pairs[cur..cur + w];
+    for (o, (p, c)) in out.iter_mut().zip(ring[prev..prev + w].iter().zip(&ring[cur..cur + w])) {
+        *o = *p + *c;
+    }
 }
 
 /// `row[i] = map(i, row[i] * k / (nx * ny))`, the window sums of a row turned
