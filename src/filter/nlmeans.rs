@@ -110,7 +110,10 @@ impl ScratchShape {
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
         let (outer_w, outer_h) = (bw + 4 * f, bh + 4 * f);
         let lanes = 2 * GROUP_MAX as u64;
-        let rings = lanes * ((2 * f + 1) * (bw + 2 * f + bw) + bw);
+        // Per lane: the rings `h` and their pair sums `q` of both boxes, the
+        // mean-weight row, each with up to 15 samples of alignment.
+        let ring_rows = stride(bw as usize + 2 * f as usize) as u64 + stride(bw as usize) as u64;
+        let rings = lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
         let guides = if self.guided { lanes * (bw + 2 * f) * (bh + 2 * f) } else { 0 };
         let mirror = GROUP_MAX as u64 * (outer_w + r) * (outer_h + r);
         let rows = 2 * (outer_w + r) + bw + 2 * f;
