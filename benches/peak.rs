@@ -1,11 +1,16 @@
-//! The machine's peak floating-point rate for the operations the filter uses
-//! (separate f32 multiply and add, no FMA), measured with independent chains
-//! `a = a * m + c` on 16 accumulators of one vector each: 2 flops per lane per
-//! step. Reported as elements/s = FLOP/s, per tier (AVX-512: 16 lanes, AVX2:
-//! 8 lanes, portable), on 1 and 2 threads. `cargo bench --bench peak`.
+//! The machine's peak floating-point rate for the operations the filter uses,
+//! measured with independent chains `a = a * m + c` on 16 accumulators of one
+//! vector each, per tier (AVX-512: 16 lanes, AVX2: 8 lanes, portable), on 1
+//! and 2 threads. `cargo bench --bench peak`.
 //!
-//! docs/performance.md divides the filter's flop count by its time and by
-//! this peak.
+//! - `peak_mul_add_f32`: a separate multiply and add, 2 operations (2 flops)
+//!   per lane per step: the rate of plain add/mul/min/max operations.
+//! - `peak_fma_f32` (AVX2 and AVX-512 tiers): one fused multiply-add, 1
+//!   operation (2 flops) per lane per step.
+//!
+//! Throughput is reported in elements/s = operations per second.
+//! docs/performance.md divides the filter's operation count (an FMA counts
+//! once) by its time and by the operation peak.
 
 use std::hint::black_box;
 
@@ -72,6 +77,44 @@ fn chains_avx2(steps: usize) -> f32 {
     out.iter().sum()
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn fma_chains_avx512(steps: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let m = _mm512_set1_ps(black_box(0.999_999_9));
+    let c = _mm512_set1_ps(black_box(1e-7));
+    let mut a: [__m512; ACC] = std::array::from_fn(|i| _mm512_set1_ps(1.0 + i as f32 * 1e-3));
+    for _ in 0..steps {
+        for v in a.iter_mut() {
+            *v = _mm512_fmadd_ps(*v, m, c);
+        }
+    }
+    let mut out = [0.0f32; 16];
+    let sum = a.iter().fold(_mm512_setzero_ps(), |s, v| _mm512_add_ps(s, *v));
+    // SAFETY: `out` holds 16 floats.
+    unsafe { _mm512_storeu_ps(out.as_mut_ptr(), sum) };
+    out.iter().sum()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fma_chains_avx2(steps: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let m = _mm256_set1_ps(black_box(0.999_999_9));
+    let c = _mm256_set1_ps(black_box(1e-7));
+    let mut a: [__m256; ACC] = std::array::from_fn(|i| _mm256_set1_ps(1.0 + i as f32 * 1e-3));
+    for _ in 0..steps {
+        for v in a.iter_mut() {
+            *v = _mm256_fmadd_ps(*v, m, c);
+        }
+    }
+    let mut out = [0.0f32; 8];
+    let sum = a.iter().fold(_mm256_setzero_ps(), |s, v| _mm256_add_ps(s, *v));
+    // SAFETY: `out` holds 8 floats.
+    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), sum) };
+    out.iter().sum()
+}
+
 fn portable(steps: usize) -> f32 {
     chains::<4>(steps, 1.0)
 }
@@ -104,6 +147,28 @@ fn bench(c: &mut Criterion) {
     for (name, lanes, f) in tiers {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((2 * ACC * lanes * STEPS * threads) as u64));
+            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
+        }
+    }
+    g.finish();
+    let mut g = c.benchmark_group("peak_fma_f32");
+    g.sample_size(10);
+    let mut fma_tiers: Vec<(&str, usize, Chains)> = Vec::new();
+    #[cfg(target_arch = "x86_64")]
+    {
+        let fma = std::is_x86_feature_detected!("fma");
+        if fma && std::is_x86_feature_detected!("avx2") {
+            // SAFETY: called only when the CPU has AVX2 and FMA.
+            fma_tiers.push(("avx2_8", 8, |n| unsafe { fma_chains_avx2(n) }));
+        }
+        if fma && std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: called only when the CPU has AVX-512F and FMA.
+            fma_tiers.push(("avx512_16", 16, |n| unsafe { fma_chains_avx512(n) }));
+        }
+    }
+    for (name, lanes, f) in fma_tiers {
+        for threads in [1usize, 2] {
+            g.throughput(Throughput::Elements((ACC * lanes * STEPS * threads) as u64));
             g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
         }
     }
