@@ -116,7 +116,7 @@ impl ScratchShape {
         let rings = lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
         let guides = if self.guided { lanes * (bw + 2 * f) * (bh + 2 * f) } else { 0 };
         let mirror = GROUP_MAX as u64 * (outer_w + r) * (outer_h + r);
-        let rows = 2 * (outer_w + r) + bw + 2 * f;
+        let rows = 3 * (outer_w + r + 15) + bw + 2 * f;
         4 * (self.accumulators as u64 * bw * bh + rings + guides + mirror + rows)
     }
 }
@@ -190,12 +190,12 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 ///
 /// Every window sum is one fixed expression of the window's samples, over
 /// the window clipped to the offset's valid rectangle (a function of the
-/// frame): horizontal sums start from the first sample and add the others in
-/// increasing x; vertical sums of a whole window add the pair sums of rows
-/// `(a, a + 1), (a + 2, a + 3), ...` (kept in a second ring, see
-/// [`pair_window`]) then the last row, and clipped windows add their rows in
-/// increasing y. The same operations for a pixel whichever block, tile or
-/// lane computes it.
+/// frame): a whole window adds the pair sums of samples `(a, a + 1),
+/// (a + 2, a + 3), ...` then its last sample, horizontally
+/// ([`pair_taps_sum`]) and vertically (the pair sums of rows kept in a second
+/// ring, see [`pair_window`]); a clipped window adds its samples in
+/// increasing coordinate. The same operations for a pixel whichever block,
+/// tile or lane computes it.
 #[inline(always)]
 fn filter_block_body(
     jobs: &[Job<'_>],
@@ -236,6 +236,7 @@ fn filter_block_body(
         drow: Aligned::zeroed(outer.width() + s.search_radius),
         mrow: vec![0.0f32; outer.width()],
         wrow: Aligned::zeroed(mid.width()),
+        pairs: Aligned::zeroed(outer.width() + s.search_radius),
     };
     let mut phi = Vec::with_capacity(mid.width());
     let geometry = |dx: i64, dy: i64| {
@@ -359,6 +360,8 @@ struct Scratch {
     /// The discarded mirror row of [`Source::Direct`].
     mrow: Vec<f32>,
     wrow: Aligned,
+    /// Pair sums of a row (see [`pair_taps_sum`]).
+    pairs: Aligned,
 }
 
 /// One pair of offsets `n = (dx, dy)` and `-n`.
@@ -419,7 +422,7 @@ fn run_group(
                     // The pair kernel with its mirror row discarded.
                     let (d, m) = (&mut scratch.drow[..w], &mut scratch.mrow[..w]);
                     distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
-                    push_h1(lane, buf, d, d_rect.x0, yd - d_y.0, f, cap);
+                    push_h1(lane, buf, d, d_rect.x0, yd - d_y.0, f, cap, &mut scratch.pairs);
                 }
             }
             Source::Pair { pairs, planes } => {
@@ -435,7 +438,16 @@ fn run_group(
                     {
                         let lane = &group[g];
                         let from = (lane.d.x0 - u_rect.x0) as usize;
-                        push_h1(lane, &mut bufs[g], &d[from..from + lane.d.width()], lane.d.x0, yd - d_y.0, f, cap);
+                        push_h1(
+                            lane,
+                            &mut bufs[g],
+                            &d[from..from + lane.d.width()],
+                            lane.d.x0,
+                            yd - d_y.0,
+                            f,
+                            cap,
+                            &mut scratch.pairs,
+                        );
                     }
                 }
             }
@@ -443,7 +455,16 @@ fn run_group(
                 for ((lane, buf), &(k, rect)) in group.iter().zip(bufs.iter_mut()).zip(src.iter()) {
                     let w = rect.width();
                     let start = (yd - rect.y0) as usize * w + (lane.d.x0 - rect.x0) as usize;
-                    push_h1(lane, buf, &planes[k][start..start + lane.d.width()], lane.d.x0, yd - d_y.0, f, cap);
+                    push_h1(
+                        lane,
+                        buf,
+                        &planes[k][start..start + lane.d.width()],
+                        lane.d.x0,
+                        yd - d_y.0,
+                        f,
+                        cap,
+                        &mut scratch.pairs,
+                    );
                 }
             }
         }
@@ -467,7 +488,8 @@ fn run_group(
                     });
                 }
                 let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), stride(block.width()));
-                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, &mut buf.h2[slot * st..slot * st + aw]);
+                let h2 = &mut buf.h2[slot * st..slot * st + aw];
+                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, h2, &mut scratch.pairs);
                 pair_row(&buf.h2, &mut buf.q2, cap, (y - w_y.0) as usize, aw);
             }
             // 3. Mean weights of every lane, accumulated in one pass.
@@ -548,10 +570,11 @@ fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
 /// Push a lane's distance row `d` (frame row `d_y0 + ri`, columns from `x0`)
 /// as its horizontal window sums into the lane's ring `h1`.
 #[inline(always)]
-fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i64, cap: usize) {
+#[allow(clippy::too_many_arguments)]
+fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i64, cap: usize, pairs: &mut [f32]) {
     let (slot, ww) = (ri as usize % cap, lane.w.width());
     let st = buf.h1.len() / cap;
-    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww]);
+    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww], pairs);
     pair_row(&buf.h1, &mut buf.q1, cap, ri as usize, ww);
 }
 
@@ -662,11 +685,13 @@ struct LaneRow<'a> {
 }
 
 /// Horizontal window sums of one row: `dst[x] = sum of src over
-/// [x - f, x + f] ∩ clip` for `x` from `dst_x0`, starting from the window's
-/// first sample and adding the others in increasing x. `src` starts at
-/// column `src_x0` and covers every window.
+/// [x - f, x + f] ∩ clip` for `x` from `dst_x0`. A whole window (f <= 4)
+/// adds the pair sums of columns `(x - f, x - f + 1), (x - f + 2, x - f + 3), ...`
+/// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`); a clipped
+/// window (or f > 4) starts from its first sample and adds the others in
+/// increasing x. `src` starts at column `src_x0` and covers every window.
 #[inline(always)]
-fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, dst: &mut [f32]) {
+fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, dst: &mut [f32], pairs: &mut [f32]) {
     let dst_x1 = dst_x0 + dst.len() as i64;
     let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
     let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
@@ -684,10 +709,10 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
         let from = (inner_x0 - f - src_x0) as usize;
         let out = &mut dst[(inner_x0 - dst_x0) as usize..][..n];
         match f {
-            1 => taps_sum::<3>(&src[from..from + n + 2], out),
-            2 => taps_sum::<5>(&src[from..from + n + 4], out),
-            3 => taps_sum::<7>(&src[from..from + n + 6], out),
-            4 => taps_sum::<9>(&src[from..from + n + 8], out),
+            1 => pair_taps_sum::<1>(&src[from..from + n + 2], pairs, out),
+            2 => pair_taps_sum::<2>(&src[from..from + n + 4], pairs, out),
+            3 => pair_taps_sum::<3>(&src[from..from + n + 6], pairs, out),
+            4 => pair_taps_sum::<4>(&src[from..from + n + 8], pairs, out),
             _ => {
                 for (i, o) in out.iter_mut().enumerate() {
                     let w = &src[from + i..=from + i + 2 * f as usize];
@@ -702,17 +727,26 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
     }
 }
 
-/// `out[i] = src[i] + src[i + 1] + ... + src[i + T - 1]`, in that order.
+/// `out[i]`, the sum of `src[i..i + 2F + 1]`, from the pair sums
+/// `pairs[j] = src[j] + src[j + 1]`: `((pairs[i] + pairs[i + 2]) + ...) + src[i + 2F]`
+/// (`F + 1` adds per output instead of `2F`, the pairs shared by neighbours).
 #[inline(always)]
-fn taps_sum<const T: usize>(src: &[f32], out: &mut [f32]) {
+fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
     let n = out.len();
-    let lanes: [&[f32]; T] = std::array::from_fn(|k| &src[k..k + n]);
+    let (a, b) = (&src[..n + 2 * F - 2], &src[1..n + 2 * F - 1]);
+    let pairs = &mut pairs[..n + 2 * F - 2];
+    for (p, (x, y)) in pairs.iter_mut().zip(a.iter().zip(b)) {
+        *p = *x + *y;
+    }
+    let pairs: &[f32] = pairs;
+    let lanes: [&[f32]; F] = std::array::from_fn(|k| &pairs[2 * k..2 * k + n]);
+    let last = &src[2 * F..2 * F + n];
     for (i, o) in out.iter_mut().enumerate() {
         let mut acc = lanes[0][i];
         for lane in &lanes[1..] {
             acc += lane[i];
         }
-        *o = acc;
+        *o = acc + last[i];
     }
 }
 
