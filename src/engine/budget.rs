@@ -99,7 +99,10 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
 ///
 /// Most of the memory is proportional to full-width rows, so the band height
 /// shrinks first; the tile width (whose cost is halo recomputation) shrinks
-/// only once bands are a single row.
+/// only once bands are a single row. The chosen sizes are then evened out
+/// over the frame ([`even`]): a 1080-row frame gets three bands of 360 rows
+/// rather than 512, 512 and a 56-row sliver whose tiles cost more per pixel
+/// (the kernel recomputes a border around each block) and leave a thread idle.
 pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandPlan, Error> {
     // Rendezvous hand-offs: stages overlap, but no band waits in a queue, so
     // the peak stays close to the steady state whatever the timing.
@@ -109,7 +112,10 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
     loop {
         let est = estimate(b, band, tile_w, depth);
         if est <= limit_bytes {
-            return Ok(BandPlan { band_rows: band, tile_width: tile_w, queue_depth: depth, estimate_bytes: est });
+            // Evening out never grows a size, so the estimate still fits.
+            let (band, tile_w) = (even(b.height, band), even(b.width, tile_w));
+            let estimate_bytes = estimate(b, band, tile_w, depth);
+            return Ok(BandPlan { band_rows: band, tile_width: tile_w, queue_depth: depth, estimate_bytes });
         }
         if band > 1 {
             band = band.div_ceil(2);
@@ -119,6 +125,13 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
             return Err(Error::Budget { needed: est, limit: limit_bytes, width: b.width, height: b.height });
         }
     }
+}
+
+/// The size cutting `total` into as few parts of at most `size` as possible,
+/// all of (nearly) equal size: `ceil(total / ceil(total / size))`.
+pub fn even(total: usize, size: usize) -> usize {
+    let (total, size) = (total.max(1), size.max(1));
+    total.div_ceil(total.div_ceil(size))
 }
 
 /// Make the C allocator return large buffers to the system when they are
@@ -199,6 +212,25 @@ mod tests {
             out_block_rows: 16,
             threads: 2,
             kernel: ScratchShape { search_radius: 10, patch_radius: 3, accumulators: 8, guided: true },
+        }
+    }
+
+    #[test]
+    fn sizes_are_evened_out_over_the_frame() {
+        assert_eq!(even(1080, 512), 360);
+        assert_eq!(even(1920, 512), 480);
+        assert_eq!(even(2160, 512), 432);
+        assert_eq!(even(1024, 512), 512);
+        assert_eq!(even(100, 512), 100);
+        assert_eq!(even(513, 512), 257);
+        let p = plan(&input(1920, 1080), 512, 8 << 30).unwrap();
+        assert_eq!((p.band_rows, p.tile_width), (360, 480));
+        // Never larger than asked, and the parts cover the frame in the same count.
+        for total in 1..600 {
+            for size in [1, 7, 64, 256, 512] {
+                let e = even(total, size);
+                assert!(e <= size.max(1) && total.div_ceil(e) == total.div_ceil(size), "{total} {size}");
+            }
         }
     }
 
