@@ -29,7 +29,8 @@ pub struct DenoiseArgs {
     /// Write the denoised channels as half floats (other channels keep their type).
     #[arg(long)]
     pub half: bool,
-    /// Tile size in pixels for the streaming engine; 0 filters the whole frame in memory.
+    /// Largest tile size in pixels for the streaming engine (tiles are evened out over the
+    /// frame: 1920x1080 gets 480x360); 0 filters the whole frame in memory.
     #[arg(long, default_value_t = 512)]
     pub tile_size: usize,
     /// Memory limit (e.g. 512M, 4G): the streaming engine's budget, or the largest frame read whole

@@ -61,7 +61,8 @@ pub trait RowSink: Send {
 /// How to stream.
 #[derive(Clone, Copy, Debug)]
 pub struct StreamOptions {
-    /// Tile size in pixels (the tile height is the band height).
+    /// Largest tile size in pixels (the tile height is the band height); the
+    /// plan evens the sizes out over the frame (`budget::even`).
     pub tile_size: usize,
     /// Worker threads (0 = one per core).
     pub threads: usize,
