@@ -38,82 +38,68 @@ fn chains<const L: usize>(steps: usize, seed: f32) -> f32 {
 }
 
 // Explicit intrinsics for the vector tiers: the compiler must not be trusted
-// to keep 16 accumulators in registers through a generic loop.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn chains_avx512(steps: usize) -> f32 {
-    use std::arch::x86_64::*;
-    let m = _mm512_set1_ps(black_box(0.999_999_9));
-    let c = _mm512_set1_ps(black_box(1e-7));
-    let mut a: [__m512; ACC] = std::array::from_fn(|i| _mm512_set1_ps(1.0 + i as f32 * 1e-3));
-    for _ in 0..steps {
-        for v in a.iter_mut() {
-            *v = _mm512_add_ps(_mm512_mul_ps(*v, m), c);
+// to keep 16 accumulators in registers through a generic loop. One chain
+// runner per tier and step: `$step(v, m, c)` is `v * m + c`, separate or fused.
+macro_rules! vector_chains {
+    ($name:ident, $feature:literal, $vec:ident, $lanes:literal, $set1:ident, $add:ident, $zero:ident, $store:ident,
+     |$v:ident, $m:ident, $c:ident| $step:expr) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $feature)]
+        fn $name(steps: usize) -> f32 {
+            use std::arch::x86_64::*;
+            let $m = $set1(black_box(0.999_999_9));
+            let $c = $set1(black_box(1e-7));
+            let mut a: [$vec; ACC] = std::array::from_fn(|i| $set1(1.0 + i as f32 * 1e-3));
+            for _ in 0..steps {
+                for $v in a.iter_mut() {
+                    *$v = $step;
+                }
+            }
+            let mut out = [0.0f32; $lanes];
+            let sum = a.iter().fold($zero(), |s, v| $add(s, *v));
+            // SAFETY: `out` holds one vector of floats.
+            unsafe { $store(out.as_mut_ptr(), sum) };
+            out.iter().sum()
         }
-    }
-    let mut out = [0.0f32; 16];
-    let sum = a.iter().fold(_mm512_setzero_ps(), |s, v| _mm512_add_ps(s, *v));
-    // SAFETY: `out` holds 16 floats.
-    unsafe { _mm512_storeu_ps(out.as_mut_ptr(), sum) };
-    out.iter().sum()
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn chains_avx2(steps: usize) -> f32 {
-    use std::arch::x86_64::*;
-    let m = _mm256_set1_ps(black_box(0.999_999_9));
-    let c = _mm256_set1_ps(black_box(1e-7));
-    let mut a: [__m256; ACC] = std::array::from_fn(|i| _mm256_set1_ps(1.0 + i as f32 * 1e-3));
-    for _ in 0..steps {
-        for v in a.iter_mut() {
-            *v = _mm256_add_ps(_mm256_mul_ps(*v, m), c);
-        }
-    }
-    let mut out = [0.0f32; 8];
-    let sum = a.iter().fold(_mm256_setzero_ps(), |s, v| _mm256_add_ps(s, *v));
-    // SAFETY: `out` holds 8 floats.
-    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), sum) };
-    out.iter().sum()
+// The two vector tiers' intrinsics, bound once.
+macro_rules! avx512_chains {
+    ($name:ident, $feature:literal, $step:expr) => {
+        vector_chains!(
+            $name,
+            $feature,
+            __m512,
+            16,
+            _mm512_set1_ps,
+            _mm512_add_ps,
+            _mm512_setzero_ps,
+            _mm512_storeu_ps,
+            |v, m, c| $step(v, m, c)
+        );
+    };
+}
+macro_rules! avx2_chains {
+    ($name:ident, $feature:literal, $step:expr) => {
+        vector_chains!(
+            $name,
+            $feature,
+            __m256,
+            8,
+            _mm256_set1_ps,
+            _mm256_add_ps,
+            _mm256_setzero_ps,
+            _mm256_storeu_ps,
+            |v, m, c| $step(v, m, c)
+        );
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-fn fma_chains_avx512(steps: usize) -> f32 {
-    use std::arch::x86_64::*;
-    let m = _mm512_set1_ps(black_box(0.999_999_9));
-    let c = _mm512_set1_ps(black_box(1e-7));
-    let mut a: [__m512; ACC] = std::array::from_fn(|i| _mm512_set1_ps(1.0 + i as f32 * 1e-3));
-    for _ in 0..steps {
-        for v in a.iter_mut() {
-            *v = _mm512_fmadd_ps(*v, m, c);
-        }
-    }
-    let mut out = [0.0f32; 16];
-    let sum = a.iter().fold(_mm512_setzero_ps(), |s, v| _mm512_add_ps(s, *v));
-    // SAFETY: `out` holds 16 floats.
-    unsafe { _mm512_storeu_ps(out.as_mut_ptr(), sum) };
-    out.iter().sum()
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn fma_chains_avx2(steps: usize) -> f32 {
-    use std::arch::x86_64::*;
-    let m = _mm256_set1_ps(black_box(0.999_999_9));
-    let c = _mm256_set1_ps(black_box(1e-7));
-    let mut a: [__m256; ACC] = std::array::from_fn(|i| _mm256_set1_ps(1.0 + i as f32 * 1e-3));
-    for _ in 0..steps {
-        for v in a.iter_mut() {
-            *v = _mm256_fmadd_ps(*v, m, c);
-        }
-    }
-    let mut out = [0.0f32; 8];
-    let sum = a.iter().fold(_mm256_setzero_ps(), |s, v| _mm256_add_ps(s, *v));
-    // SAFETY: `out` holds 8 floats.
-    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), sum) };
-    out.iter().sum()
-}
+avx512_chains!(chains_avx512, "avx512f", |v: &mut __m512, m, c| _mm512_add_ps(_mm512_mul_ps(*v, m), c));
+avx2_chains!(chains_avx2, "avx2", |v: &mut __m256, m, c| _mm256_add_ps(_mm256_mul_ps(*v, m), c));
+avx512_chains!(fma_chains_avx512, "avx512f,fma", |v: &mut __m512, m, c| _mm512_fmadd_ps(*v, m, c));
+avx2_chains!(fma_chains_avx2, "avx2,fma", |v: &mut __m256, m, c| _mm256_fmadd_ps(*v, m, c));
 
 fn portable(steps: usize) -> f32 {
     chains::<4>(steps, 1.0)
