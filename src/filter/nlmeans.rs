@@ -487,7 +487,7 @@ fn run_group(
                         exp2_weight(if tf[i] < t { tf[i] } else { t })
                     });
                 }
-                let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), stride(block.width()));
+                let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), buf.h2.len() / cap);
                 let h2 = &mut buf.h2[slot * st..slot * st + aw];
                 window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, h2, &mut scratch.pairs);
                 pair_row(&buf.h2, &mut buf.q2, cap, (y - w_y.0) as usize, aw);
