@@ -4,8 +4,9 @@
 //! ns per pixel-offset per thread.
 //!
 //! `cargo run --release --example timing -- MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]`
-//! MODE: `colour` (beauty + variance only) or `full` (the default filter with
-//! albedo, normal and depth features, and the direct/indirect light layers).
+//! MODE: `colour` (beauty + variance only), `full` (the default filter with
+//! albedo, normal and depth features, and the direct/indirect light layers),
+//! `features` (features, no layers) or `layers` (layers, no features).
 //! `NLDENOISE_TILE=N` sets the tile size (default: the engine's).
 
 use std::time::Instant;
@@ -23,16 +24,22 @@ fn main() {
         eprintln!("usage: timing MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]");
         std::process::exit(2);
     }
-    let full = a[0] == "full";
+    // `layers` and `features` run one half of the full filter, to attribute its cost.
+    let (features, layers) = match a[0].as_str() {
+        "full" => (true, true),
+        "features" => (true, false),
+        "layers" => (false, true),
+        _ => (false, false),
+    };
     let (w, h, threads): (usize, usize, usize) = (a[1].parse().unwrap(), a[2].parse().unwrap(), a[3].parse().unwrap());
     let radius: usize = a.get(4).map_or(10, |s| s.parse().unwrap());
     let runs: usize = a.get(5).map_or(3, |s| s.parse().unwrap());
     let rect = Rect::from_origin_size(0, 0, w, h);
-    let frame = Synthetic { frame: rect, features: full, layers: full, sigma: 0.05 }.to_frame();
-    let opts = if full {
-        RoleOptions { layers: Selection::Auto, ..RoleOptions::default() }
-    } else {
-        RoleOptions { features: Selection::None, ..RoleOptions::default() }
+    let frame = Synthetic { frame: rect, features, layers, sigma: 0.05 }.to_frame();
+    let opts = RoleOptions {
+        layers: if layers { Selection::Auto } else { Selection::None },
+        features: if features { Selection::Auto } else { Selection::None },
+        ..RoleOptions::default()
     };
     let roles = roles::detect("timing".as_ref(), &frame.channel_names(), &opts).unwrap();
     let params = Params { search_radius: radius, ..Params::default() };

@@ -122,7 +122,9 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     let kf2 = s.feature_strength * s.feature_strength;
     // The channel mean and `-log2(e)` of the weight's argument (see `nlmeans`).
     let scale = log2_distance_scale(n);
-    let inv_den = (0..n)
+    // Without a variance the denominator is the same for every channel: one plane.
+    let planes = if variance.is_some() { n } else { 1 };
+    let inv_den = (0..planes)
         .map(|c| {
             Plane::from_fn(den_rect, |x, y| {
                 let mut m = s.tau;

@@ -229,36 +229,92 @@ pub fn colour_distance_pair_rgb(
     }
 }
 
-/// Accumulate one feature channel's distance for a row (SPEC §3), with the
-/// per-pixel reciprocal denominator precomputed:
-/// `acc[i] += ((fp - fq)^2 - (vp + min(vp, vq))) * inv_den[i]`
-/// (`vp = vq = 0` when the feature has no variance).
+/// One feature's rows for [`fold_feature_term`]: the feature at `p` and at
+/// `q = p + n`, the variances at both when the feature has one, and the
+/// per-pixel weight factors `inv_den` (one plane for every channel when the
+/// feature has no variance, one per channel when it has).
+pub struct FeatureRows<'a, const C: usize> {
+    /// The feature's channels at `p`.
+    pub fp: [&'a [f32]; C],
+    /// The feature's channels at `q`.
+    pub fq: [&'a [f32]; C],
+    /// The variances at `p` and at `q`.
+    pub var: Option<([&'a [f32]; C], [&'a [f32]; C])>,
+    /// The weight factors at `p` (only the first is read without a variance).
+    pub inv_den: [&'a [f32]; C],
+}
+
+/// Fold one feature's term of the feature weight's argument (SPEC §3) for a
+/// row into `out` by a NaN-safe minimum (a NaN term never wins; with `FIRST`,
+/// `out` starts from 0):
+///
+/// * without variance, `t = inv_den_0 * (((0 + d_0^2) + d_1^2) + ...)`, one
+///   multiply by the denominator shared by the channels;
+/// * with variance, `t = ((0 + n_0 inv_den_0) + n_1 inv_den_1) + ...` with
+///   `n_c = d_c^2 - (vp_c + min(vp_c, vq_c))`,
+///
+/// where `d_c = fp_c - fq_c`, every `+ x y` one fused multiply-add. All the
+/// channels are read in one pass, the sum kept in a register.
 #[inline(always)]
-pub fn accumulate_feature_distance(
-    acc: &mut [f32],
-    fp: &[f32],
-    fq: &[f32],
-    var: Option<(&[f32], &[f32])>,
-    inv_den: &[f32],
-) {
-    let n = acc.len();
-    let (fp, fq, inv_den) = (&fp[..n], &fq[..n], &inv_den[..n]);
-    match var {
-        Some((vp, vq)) => {
-            let (vp, vq) = (&vp[..n], &vq[..n]);
+pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], rows: &FeatureRows<'_, C>) {
+    let n = out.len();
+    let (fp, fq) = (rows.fp.map(|r| &r[..n]), rows.fq.map(|r| &r[..n]));
+    let fold = |o: f32, t: f32| {
+        let o = if FIRST { 0.0 } else { o };
+        if t < o { t } else { o }
+    };
+    match rows.var {
+        None => {
+            let inv = &rows.inv_den[0][..n];
             for i in 0..n {
-                let d = fp[i] - fq[i];
-                let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
-                acc[i] = d.mul_add(d, -(vp[i] + m)).mul_add(inv_den[i], acc[i]);
+                let mut s = 0.0f32;
+                for c in 0..C {
+                    s = plain_step(s, fp[c][i], fq[c][i]);
+                }
+                out[i] = fold(out[i], s * inv[i]);
             }
         }
-        None => {
+        Some((vp, vq)) => {
+            let (vp, vq, inv) = (vp.map(|r| &r[..n]), vq.map(|r| &r[..n]), rows.inv_den.map(|r| &r[..n]));
             for i in 0..n {
-                let d = fp[i] - fq[i];
-                acc[i] = (d * d).mul_add(inv_den[i], acc[i]);
+                let mut a = 0.0f32;
+                for c in 0..C {
+                    a = variance_step(a, fp[c][i], fq[c][i], vp[c][i], vq[c][i], inv[c][i]);
+                }
+                out[i] = fold(out[i], a);
             }
         }
     }
+}
+
+/// [`fold_feature_term`] for any number of channels (rows as slices, not
+/// arrays): the same operations per pixel, for features of more than four
+/// channels.
+pub fn fold_feature_term_any(out: &mut [f32], fp: &[&[f32]], fq: &[&[f32]], var: Option<(&[&[f32]], &[&[f32]])>, inv_den: &[&[f32]], first: bool) {
+    for i in 0..out.len() {
+        let t = match var {
+            None => fp.iter().zip(fq).fold(0.0f32, |s, (p, q)| plain_step(s, p[i], q[i])) * inv_den[0][i],
+            Some((vp, vq)) => (0..fp.len())
+                .fold(0.0f32, |a, c| variance_step(a, fp[c][i], fq[c][i], vp[c][i], vq[c][i], inv_den[c][i])),
+        };
+        let o = if first { 0.0 } else { out[i] };
+        out[i] = if t < o { t } else { o };
+    }
+}
+
+/// `s + (p - q)^2`, one fused multiply-add.
+#[inline(always)]
+fn plain_step(s: f32, p: f32, q: f32) -> f32 {
+    let d = p - q;
+    d.mul_add(d, s)
+}
+
+/// `a + ((p - q)^2 - (vp + min(vp, vq))) * inv`, two fused multiply-adds.
+#[inline(always)]
+fn variance_step(a: f32, p: f32, q: f32, vp: f32, vq: f32, inv: f32) -> f32 {
+    let d = p - q;
+    let m = if vq < vp { vq } else { vp };
+    d.mul_add(d, -(vp + m)).mul_add(inv, a)
 }
 
 #[cfg(test)]
@@ -289,6 +345,71 @@ mod tests {
         assert_eq!(exp2_weight(f32::NAN), floor);
         assert_eq!(exp2_weight(f32::NEG_INFINITY), floor);
         assert_eq!(exp2_weight(-1e30), floor);
+    }
+
+    /// The array kernel (channel counts 1 to 4, with and without variance,
+    /// first feature or not) and the any-count kernel give the same bits, and
+    /// both match the formula in f64 (no variance: `inv * sum d^2`).
+    #[test]
+    fn feature_term_kernels_agree() {
+        fn check<const C: usize>() {
+            let n = 37;
+            let rows_of = |seed: usize| -> Vec<Vec<f32>> {
+                (0..C).map(|c| (0..n).map(|i| (((i + 3 * c + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect()).collect()
+            };
+            let (fp, fq, vp, vq) = (rows_of(1), rows_of(5), rows_of(9), rows_of(13));
+            let (vp, vq): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (
+                vp.iter().map(|r| r.iter().map(|v| v.abs() * 0.01).collect()).collect(),
+                vq.iter().map(|r| r.iter().map(|v| v.abs() * 0.01).collect()).collect(),
+            );
+            let inv: Vec<Vec<f32>> = rows_of(17).iter().map(|r| r.iter().map(|v| -(v.abs() + 0.5)).collect()).collect();
+            fn arr<const C: usize>(rows: &[Vec<f32>]) -> [&[f32]; C] {
+                std::array::from_fn(|c| &rows[c][..])
+            }
+            fn sl(rows: &[Vec<f32>]) -> Vec<&[f32]> {
+                rows.iter().map(|r| &r[..]).collect()
+            }
+            let prior: Vec<f32> = (0..n).map(|i| -((i % 5) as f32) * 0.3).collect();
+            for with_var in [false, true] {
+                let rows = FeatureRows::<C> {
+                    fp: arr(&fp),
+                    fq: arr(&fq),
+                    var: with_var.then(|| (arr(&vp), arr(&vq))),
+                    inv_den: arr(&inv),
+                };
+                let (svp, svq) = (sl(&vp), sl(&vq));
+                let var = with_var.then_some((&svp[..], &svq[..]));
+                for first in [true, false] {
+                    let (mut a, mut b) = (prior.clone(), prior.clone());
+                    if first {
+                        fold_feature_term::<C, true>(&mut a, &rows);
+                    } else {
+                        fold_feature_term::<C, false>(&mut a, &rows);
+                    }
+                    fold_feature_term_any(&mut b, &sl(&fp), &sl(&fq), var, &sl(&inv), first);
+                    for i in 0..n {
+                        assert_eq!(a[i].to_bits(), b[i].to_bits(), "C={C} var={with_var} first={first} i={i}");
+                        let t: f64 = if with_var {
+                            (0..C)
+                                .map(|c| {
+                                    let d = fp[c][i] as f64 - fq[c][i] as f64;
+                                    let m = vp[c][i].min(vq[c][i]) as f64;
+                                    (d * d - (vp[c][i] as f64 + m)) * inv[c][i] as f64
+                                })
+                                .sum()
+                        } else {
+                            inv[0][i] as f64 * (0..C).map(|c| (fp[c][i] as f64 - fq[c][i] as f64).powi(2)).sum::<f64>()
+                        };
+                        let want = t.min(if first { 0.0 } else { prior[i] as f64 });
+                        assert!((a[i] as f64 - want).abs() <= 1e-5 * (1.0 + want.abs()), "C={C}: {} vs {want}", a[i]);
+                    }
+                }
+            }
+        }
+        check::<1>();
+        check::<2>();
+        check::<3>();
+        check::<4>();
     }
 
     #[test]

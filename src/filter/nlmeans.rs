@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    accumulate_colour_distance_pair, accumulate_feature_distance, colour_distance_pair_rgb, exp2_weight,
-    log2_distance_scale,
+    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, exp2_weight, fold_feature_term,
+    fold_feature_term_any, log2_distance_scale,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -56,8 +56,10 @@ pub struct GuideFeature {
     pub values: Vec<Plane>,
     /// Variance of each channel, same coverage, when the feature has one.
     pub variance: Option<Vec<Plane>>,
-    /// `-log2(e) / (channels kf^2 max(tau, V_c(p), G(p)))` per channel, covering
-    /// `(out ⊕ f) ∩ frame`: the weight argument of `kernels::exp2_weight`.
+    /// `-log2(e) / (channels kf^2 max(tau, V_c(p), G(p)))`, covering
+    /// `(out ⊕ f) ∩ frame`: the factor of the weight argument of
+    /// `kernels::exp2_weight`. One plane per channel with a variance; one
+    /// plane shared by every channel without (the factor is then the same).
     pub inv_den: Vec<Plane>,
 }
 
@@ -238,7 +240,6 @@ fn filter_block_body(
         wrow: Aligned::zeroed(mid.width()),
         pairs: Aligned::zeroed(outer.width() + s.search_radius),
     };
-    let mut phi = Vec::with_capacity(mid.width());
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
         Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
@@ -260,7 +261,7 @@ fn filter_block_body(
             let group = &group[..g];
             if !features.is_empty() {
                 for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
-                    feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+                    feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()]);
                 }
             }
             for (j, job) in jobs.iter().enumerate() {
@@ -309,10 +310,10 @@ fn filter_block_body(
         let (pairs, fwd, mir, mir_src) = (&pairs[..np], &fwd[..nf], &mir[..nm], &mir_src[..nm]);
         if !features.is_empty() {
             for (lane, buf) in fwd.iter().zip(lanes.iter_mut()) {
-                feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+                feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()]);
             }
             for (lane, buf) in mir.iter().zip(lanes[GROUP_MAX..].iter_mut()) {
-                feature_weights(features, lane.w, lane.dx, -dy, &mut buf.wfeat[..lane.w.area()], &mut phi);
+                feature_weights(features, lane.w, lane.dx, -dy, &mut buf.wfeat[..lane.w.area()]);
             }
         }
         for (j, job) in jobs.iter().enumerate() {
@@ -1010,32 +1011,53 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
 
 /// `t_f = -log2(e) max(0, max_j Phi_j^2)` on `rect` for offset `(dx, dy)`,
 /// the feature weight's argument for [`exp2_weight`] (each feature's
-/// `inv_den` already holds `-log2(e) / channels`).
+/// `inv_den` already holds `-log2(e) / channels`): one pass per feature and
+/// row ([`fold_feature_term`]), folded into `out` by a minimum.
 #[inline(always)]
-fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32], phi: &mut Vec<f32>) {
+fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32]) {
     let w = rect.width();
-    phi.clear();
-    phi.resize(w, 0.0);
     for (ri, y) in (rect.y0..rect.y1).enumerate() {
         let row = &mut out[ri * w..(ri + 1) * w];
-        row.fill(0.0);
-        for feat in features {
-            phi.fill(0.0);
-            for (c, fv) in feat.values.iter().enumerate() {
-                let fp = fv.row(y, rect.x0, rect.x1);
-                let fq = fv.row(y + dy, rect.x0 + dx, rect.x1 + dx);
-                let var = feat
-                    .variance
-                    .as_ref()
-                    .map(|v| (v[c].row(y, rect.x0, rect.x1), v[c].row(y + dy, rect.x0 + dx, rect.x1 + dx)));
-                accumulate_feature_distance(phi, fp, fq, var, feat.inv_den[c].row(y, rect.x0, rect.x1));
-            }
-            for (o, p) in row.iter_mut().zip(phi.iter()) {
-                // NaN-safe: a NaN distance must not win over a finite one.
-                if *p < *o {
-                    *o = *p;
+        for (j, feat) in features.iter().enumerate() {
+            let at = (y, dy, rect.x0, rect.x1, dx, j == 0);
+            match feat.values.len() {
+                1 => fold_feature_rows::<1>(row, feat, at),
+                2 => fold_feature_rows::<2>(row, feat, at),
+                3 => fold_feature_rows::<3>(row, feat, at),
+                4 => fold_feature_rows::<4>(row, feat, at),
+                _ => {
+                    fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
+                        planes.iter().map(|p| p.row(y, x0, x1)).collect()
+                    }
+                    let (x0, x1) = (rect.x0, rect.x1);
+                    let (fp, fq) = (rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
+                    let var = feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx)));
+                    let inv_den = rows(&feat.inv_den, y, x0, x1);
+                    let var = var.as_ref().map(|(p, q)| (&p[..], &q[..]));
+                    fold_feature_term_any(row, &fp, &fq, var, &inv_den, j == 0);
                 }
             }
         }
     }
+}
+
+/// One feature's [`fold_feature_term`] on row `y` (columns `x0..x1`) for
+/// offset `(dx, dy)`, the feature's `C` channels as arrays.
+#[inline(always)]
+fn fold_feature_rows<const C: usize>(
+    out: &mut [f32],
+    feat: &GuideFeature,
+    (y, dy, x0, x1, dx, first): (i64, i64, i64, i64, i64, bool),
+) {
+    fn rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
+        std::array::from_fn(|c| planes[c].row(y, x0, x1))
+    }
+    let last = feat.inv_den.len() - 1;
+    let rows = FeatureRows::<C> {
+        fp: rows(&feat.values, y, x0, x1),
+        fq: rows(&feat.values, y + dy, x0 + dx, x1 + dx),
+        var: feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx))),
+        inv_den: std::array::from_fn(|c| feat.inv_den[c.min(last)].row(y, x0, x1)),
+    };
+    if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
 }
