@@ -3,6 +3,7 @@
 
 pub mod roles;
 pub mod stream;
+mod zip;
 
 use std::fs::File;
 use std::io::BufWriter;

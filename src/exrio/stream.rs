@@ -510,7 +510,7 @@ fn write_thread(
             let blocks = asm.ready_blocks();
             let chunks: Vec<(usize, Chunk)> = blocks
                 .into_par_iter()
-                .map(|(i, b)| b.compress_to_chunk(&meta.headers).map(|c| (i, c)))
+                .map(|(i, b)| super::zip::compress_block(b, &meta.headers).map(|c| (i, c)))
                 .collect::<Result<_, _>>()?;
             for (i, c) in chunks {
                 chunk_writer.write_chunk(i, c)?;

@@ -290,7 +290,14 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
 /// [`fold_feature_term`] for any number of channels (rows as slices, not
 /// arrays): the same operations per pixel, for features of more than four
 /// channels.
-pub fn fold_feature_term_any(out: &mut [f32], fp: &[&[f32]], fq: &[&[f32]], var: Option<(&[&[f32]], &[&[f32]])>, inv_den: &[&[f32]], first: bool) {
+pub fn fold_feature_term_any(
+    out: &mut [f32],
+    fp: &[&[f32]],
+    fq: &[&[f32]],
+    var: Option<(&[&[f32]], &[&[f32]])>,
+    inv_den: &[&[f32]],
+    first: bool,
+) {
     for i in 0..out.len() {
         let t = match var {
             None => fp.iter().zip(fq).fold(0.0f32, |s, (p, q)| plain_step(s, p[i], q[i])) * inv_den[0][i],
@@ -355,7 +362,9 @@ mod tests {
         fn check<const C: usize>() {
             let n = 37;
             let rows_of = |seed: usize| -> Vec<Vec<f32>> {
-                (0..C).map(|c| (0..n).map(|i| (((i + 3 * c + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect()).collect()
+                (0..C)
+                    .map(|c| (0..n).map(|i| (((i + 3 * c + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect())
+                    .collect()
             };
             let (fp, fq, vp, vq) = (rows_of(1), rows_of(5), rows_of(9), rows_of(13));
             let (vp, vq): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (
