@@ -229,6 +229,9 @@ pub fn colour_distance_pair_rgb(
     }
 }
 
+/// One row of each of `C` channels.
+pub type ChannelRowsRef<'a, const C: usize> = [&'a [f32]; C];
+
 /// One feature's rows for [`fold_feature_term`]: the feature at `p` and at
 /// `q = p + n`, the variances at both when the feature has one, and the
 /// per-pixel weight factors `inv_den` (one plane for every channel when the
@@ -239,7 +242,7 @@ pub struct FeatureRows<'a, const C: usize> {
     /// The feature's channels at `q`.
     pub fq: [&'a [f32]; C],
     /// The variances at `p` and at `q`.
-    pub var: Option<([&'a [f32]; C], [&'a [f32]; C])>,
+    pub var: Option<(ChannelRowsRef<'a, C>, ChannelRowsRef<'a, C>)>,
     /// The weight factors at `p` (only the first is read without a variance).
     pub inv_den: [&'a [f32]; C],
 }
@@ -287,6 +290,9 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
     }
 }
 
+/// The variance rows at `p` and at `q` of any number of channels.
+pub type VarianceRows<'a> = (&'a [&'a [f32]], &'a [&'a [f32]]);
+
 /// [`fold_feature_term`] for any number of channels (rows as slices, not
 /// arrays): the same operations per pixel, for features of more than four
 /// channels.
@@ -294,7 +300,7 @@ pub fn fold_feature_term_any(
     out: &mut [f32],
     fp: &[&[f32]],
     fq: &[&[f32]],
-    var: Option<(&[&[f32]], &[&[f32]])>,
+    var: Option<VarianceRows<'_>>,
     inv_den: &[&[f32]],
     first: bool,
 ) {
