@@ -198,7 +198,7 @@ fn plan_with(
                 patch_radius: params.patch_radius,
                 // Every denoised channel's numerator, one denominator per job.
                 accumulators: cp.output_idx.len() + shape.layers.max(1),
-                guided: !shape.feature_has_variance.is_empty(),
+                guides: shape.feature_has_variance.len(),
             },
         },
         opts.tile_size,

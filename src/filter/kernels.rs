@@ -315,6 +315,50 @@ pub fn fold_feature_term_any(
     }
 }
 
+/// `out[i] = ((0 + d_0^2) + d_1^2) + ...` with `d_c = fp_c - fq_c`: the sum
+/// [`fold_feature_term`] multiplies by the denominator for a feature without
+/// variance. It is symmetric: the pair `(q, p)` gives the same bits (a
+/// difference only changes sign), so offsets `n` and `-n` share it.
+#[inline(always)]
+pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_, C>, fq: ChannelRowsRef<'_, C>) {
+    let n = out.len();
+    let (fp, fq) = (fp.map(|r| &r[..n]), fq.map(|r| &r[..n]));
+    for i in 0..n {
+        let mut s = 0.0f32;
+        for c in 0..C {
+            s = plain_step(s, fp[c][i], fq[c][i]);
+        }
+        out[i] = s;
+    }
+}
+
+/// [`feature_square_sum`] for any number of channels.
+pub fn feature_square_sum_any(out: &mut [f32], fp: &[&[f32]], fq: &[&[f32]]) {
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = fp.iter().zip(fq).fold(0.0f32, |s, (p, q)| plain_step(s, p[i], q[i]));
+    }
+}
+
+/// Fold `t = s * inv` into `out` by the NaN-safe minimum of
+/// [`fold_feature_term`] (from 0 when `first`): the same bits as
+/// [`fold_feature_term`] without variance, given `s` from [`feature_square_sum`].
+#[inline(always)]
+pub fn fold_feature_product(out: &mut [f32], s: &[f32], inv: &[f32], first: bool) {
+    let n = out.len();
+    let (s, inv) = (&s[..n], &inv[..n]);
+    if first {
+        for i in 0..n {
+            let t = s[i] * inv[i];
+            out[i] = if t < 0.0 { t } else { 0.0 };
+        }
+    } else {
+        for i in 0..n {
+            let t = s[i] * inv[i];
+            out[i] = if t < out[i] { t } else { out[i] };
+        }
+    }
+}
+
 /// `s + (p - q)^2`, one fused multiply-add.
 #[inline(always)]
 fn plain_step(s: f32, p: f32, q: f32) -> f32 {

@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, exp2_weight, fold_feature_term,
-    fold_feature_term_any, log2_distance_scale,
+    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, exp2_weight, feature_square_sum,
+    feature_square_sum_any, fold_feature_product, fold_feature_term, fold_feature_term_any, log2_distance_scale,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -97,15 +97,16 @@ pub struct ScratchShape {
     pub patch_radius: usize,
     /// Numerator and denominator planes of all jobs (at least).
     pub accumulators: usize,
-    /// Whether guide features are used.
-    pub guided: bool,
+    /// Number of guide features (0 = unguided).
+    pub guides: usize,
 }
 
 impl ScratchShape {
     /// Bytes of working memory one block of the kernel holds while it runs
     /// (one block per worker thread at a time), for a region of
     /// `width x height`: the numerators and denominators, the lanes' rings and
-    /// rows, the guides' weight planes, and the stored mirror distances.
+    /// rows, the guides' weight planes and square-sum rows, and the stored
+    /// mirror distances.
     /// Independent of the frame size.
     pub fn bytes(&self, width: usize, height: usize) -> u64 {
         let (bw, bh) = (width.clamp(1, BLOCK_W) as u64, height.clamp(1, BLOCK_H) as u64);
@@ -116,7 +117,12 @@ impl ScratchShape {
         // mean-weight row, each with up to 15 samples of alignment.
         let ring_rows = stride(bw as usize + 2 * f as usize) as u64 + stride(bw as usize) as u64;
         let rings = lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
-        let guides = if self.guided { lanes * (bw + 2 * f) * (bh + 2 * f) } else { 0 };
+        // Per lane a plane of feature weights, and one row of square sums per guide.
+        let guides = if self.guides > 0 {
+            lanes * (bw + 2 * f) * (bh + 2 * f) + self.guides as u64 * (bw + 2 * f + r)
+        } else {
+            0
+        };
         let mirror = GROUP_MAX as u64 * (outer_w + r) * (outer_h + r);
         let rows = 3 * (outer_w + r + 15) + bw + 2 * f;
         4 * (self.accumulators as u64 * bw * bh + rings + guides + mirror + rows)
@@ -240,6 +246,8 @@ fn filter_block_body(
         wrow: Aligned::zeroed(mid.width()),
         pairs: Aligned::zeroed(outer.width() + s.search_radius),
     };
+    // Rows of the guides' square sums of a pair (see `pair_feature_weights`).
+    let mut square_sums = vec![0.0f32; features.len() * (mid.width() + s.search_radius)];
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
         Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
@@ -273,7 +281,7 @@ fn filter_block_body(
         // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
         // share are computed once, over `u`, the pixels `p` whose `(p, p + n)`
         // either direction needs: `p` for `n`, `p + n` for `-n`.
-        let mut pairs = [PairLane { dx: 0, u: Rect::EMPTY, fwd: None }; GROUP_MAX];
+        let mut pairs = [PairLane { dx: 0, u: Rect::EMPTY, fwd: None, mir: None }; GROUP_MAX];
         let (mut fwd, mut mir) = ([Lane::EMPTY; GROUP_MAX], [Lane::EMPTY; GROUP_MAX]);
         let mut mir_src = [(0usize, Rect::EMPTY); GROUP_MAX];
         let (mut np, mut nf, mut nm) = (0, 0, 0);
@@ -290,7 +298,7 @@ fn filter_block_body(
                 y0: (outer.y0 - dy).max(lf.valid.y0),
                 y1: outer.y1.min(lf.valid.y1),
             };
-            let mut fwd_idx = None;
+            let (mut fwd_idx, mut mir_idx) = (None, None);
             if !lf.acc.is_empty() {
                 fwd[nf] = lf;
                 fwd_idx = Some(nf);
@@ -299,16 +307,25 @@ fn filter_block_body(
             if !lm.acc.is_empty() {
                 mir[nm] = lm;
                 mir_src[nm] = (np, u.translate(dx, dy));
+                mir_idx = Some(nm);
                 nm += 1;
             }
-            pairs[np] = PairLane { dx, u, fwd: fwd_idx };
+            pairs[np] = PairLane { dx, u, fwd: fwd_idx, mir: mir_idx };
             np += 1;
         }
         if np == 0 {
             continue;
         }
         let (pairs, fwd, mir, mir_src) = (&pairs[..np], &fwd[..nf], &mir[..nm], &mir_src[..nm]);
-        if !features.is_empty() {
+        if !features.is_empty() && features.iter().all(|f| f.variance.is_none()) {
+            // The square sums are symmetric: one per pair, for both lanes.
+            let (fl, ml) = lanes.split_at_mut(GROUP_MAX);
+            for pair in pairs {
+                let f_out = pair.fwd.map(|g| (fwd[g].w, &mut fl[g].wfeat[..fwd[g].w.area()]));
+                let m_out = pair.mir.map(|g| (mir[g].w, &mut ml[g].wfeat[..mir[g].w.area()]));
+                pair_feature_weights(features, (pair.dx, dy), f_out, m_out, &mut square_sums);
+            }
+        } else if !features.is_empty() {
             for (lane, buf) in fwd.iter().zip(lanes.iter_mut()) {
                 feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()]);
             }
@@ -373,6 +390,8 @@ struct PairLane {
     u: Rect,
     /// The forward lane (offset `n`) this pair feeds, when `n` is needed.
     fwd: Option<usize>,
+    /// The mirror lane (offset `-n`) this pair feeds, when `-n` is needed.
+    mir: Option<usize>,
 }
 
 /// Where a group's per-pixel distances come from.
@@ -1060,4 +1079,76 @@ fn fold_feature_rows<const C: usize>(
         inv_den: std::array::from_fn(|c| feat.inv_den[c.min(last)].row(y, x0, x1)),
     };
     if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
+}
+
+/// [`feature_weights`] of the offsets `n = (dx, dy)` and `-n` together, for
+/// guides without variance: the forward lane's weights on `fwd.0` (pixels
+/// `p`) and the mirror lane's on `mir.0` (pixels `p + n`), from one square
+/// sum per feature and pixel pair ([`feature_square_sum`], the same bits
+/// either way), each multiplied by its own pixel's denominator.
+#[inline(always)]
+fn pair_feature_weights<'a>(
+    features: &[GuideFeature],
+    (dx, dy): (i64, i64),
+    mut fwd: Option<(Rect, &'a mut [f32])>,
+    mut mir: Option<(Rect, &'a mut [f32])>,
+    square_sums: &mut [f32],
+) {
+    let rf = fwd.as_ref().map(|(r, _)| *r);
+    // The mirror lane's pixels, as the pixels `p` of the pairs `(p, p + n)`.
+    let rm = mir.as_ref().map(|(r, _)| r.translate(-dx, -dy));
+    let u = match (rf, rm) {
+        (Some(a), Some(b)) => Rect { x0: a.x0.min(b.x0), y0: a.y0.min(b.y0), x1: a.x1.max(b.x1), y1: a.y1.max(b.y1) },
+        (Some(a), None) | (None, Some(a)) => a,
+        (None, None) => return,
+    };
+    let w = u.width();
+    for y in u.y0..u.y1 {
+        for (j, feat) in features.iter().enumerate() {
+            let out = &mut square_sums[j * w..(j + 1) * w];
+            let at = (y, dy, u.x0, u.x1, dx);
+            match feat.values.len() {
+                1 => square_sum_rows::<1>(out, feat, at),
+                2 => square_sum_rows::<2>(out, feat, at),
+                3 => square_sum_rows::<3>(out, feat, at),
+                4 => square_sum_rows::<4>(out, feat, at),
+                _ => {
+                    fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
+                        planes.iter().map(|p| p.row(y, x0, x1)).collect()
+                    }
+                    let fp = rows(&feat.values, y, u.x0, u.x1);
+                    let fq = rows(&feat.values, y + dy, u.x0 + dx, u.x1 + dx);
+                    feature_square_sum_any(out, &fp, &fq);
+                }
+            }
+        }
+        // Each lane: its row of pixels `p` (forward) or `p + n` (mirror).
+        for (rect, out, (sx, sy)) in [(rf, &mut fwd, (0, 0)), (rm, &mut mir, (dx, dy))] {
+            let (Some(r), Some((_, out))) = (rect, out) else { continue };
+            if !(r.y0..r.y1).contains(&y) {
+                continue;
+            }
+            let row = &mut out[(y - r.y0) as usize * r.width()..][..r.width()];
+            let from = (r.x0 - u.x0) as usize;
+            for (j, feat) in features.iter().enumerate() {
+                let sums = &square_sums[j * w + from..][..r.width()];
+                let inv = feat.inv_den[0].row(y + sy, r.x0 + sx, r.x1 + sx);
+                fold_feature_product(row, sums, inv, j == 0);
+            }
+        }
+    }
+}
+
+/// One feature's [`feature_square_sum`] on row `y` (columns `x0..x1`) for
+/// offset `(dx, dy)`, the feature's `C` channels as arrays.
+#[inline(always)]
+fn square_sum_rows<const C: usize>(
+    out: &mut [f32],
+    feat: &GuideFeature,
+    (y, dy, x0, x1, dx): (i64, i64, i64, i64, i64),
+) {
+    fn rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
+        std::array::from_fn(|c| planes[c].row(y, x0, x1))
+    }
+    feature_square_sum::<C>(out, rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
 }

@@ -7,9 +7,16 @@ use nldenoise::geom::Rect;
 use crate::common::{ALL_KINDS, frame_inputs, small_params};
 
 fn check(frame: Rect, seed: u64, r: usize, f: usize) {
+    check_with(frame, seed, r, f, true);
+}
+
+/// `feature_variance` false: every guide without variance, so the kernel
+/// shares each guide's square sums between offsets `n` and `-n`.
+fn check_with(frame: Rect, seed: u64, r: usize, f: usize, feature_variance: bool) {
     for kinds in ALL_KINDS {
         let inputs = frame_inputs(frame, seed, kinds);
-        let params = small_params(r, f);
+        let mut params = small_params(r, f);
+        params.feature_variance = feature_variance;
         let fast = filter::denoise_region(&inputs, frame, frame, &params).unwrap();
         let naive = reference::denoise_frame(&inputs, frame, &params);
         let mut worst = 0.0f64;
@@ -27,6 +34,12 @@ fn check(frame: Rect, seed: u64, r: usize, f: usize) {
 fn fast_matches_naive_reference() {
     check(Rect::from_origin_size(0, 0, 23, 17), 1, 3, 1);
     check(Rect::from_origin_size(-5, 7, 19, 13), 2, 2, 2);
+}
+
+#[test]
+fn fast_matches_naive_reference_without_feature_variances() {
+    check_with(Rect::from_origin_size(0, 0, 23, 17), 6, 3, 1, false);
+    check_with(Rect::from_origin_size(2, -3, 17, 12), 7, 4, 2, false);
 }
 
 #[test]
