@@ -317,20 +317,13 @@ fn filter_block_body(
             continue;
         }
         let (pairs, fwd, mir, mir_src) = (&pairs[..np], &fwd[..nf], &mir[..nm], &mir_src[..nm]);
-        if !features.is_empty() && features.iter().all(|f| f.variance.is_none()) {
-            // The square sums are symmetric: one per pair, for both lanes.
+        if !features.is_empty() {
+            // Both lanes of each pair in one pass over the guides.
             let (fl, ml) = lanes.split_at_mut(GROUP_MAX);
             for pair in pairs {
                 let f_out = pair.fwd.map(|g| (fwd[g].w, &mut fl[g].wfeat[..fwd[g].w.area()]));
                 let m_out = pair.mir.map(|g| (mir[g].w, &mut ml[g].wfeat[..mir[g].w.area()]));
                 pair_feature_weights(features, (pair.dx, dy), f_out, m_out, &mut square_sums);
-            }
-        } else if !features.is_empty() {
-            for (lane, buf) in fwd.iter().zip(lanes.iter_mut()) {
-                feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()]);
-            }
-            for (lane, buf) in mir.iter().zip(lanes[GROUP_MAX..].iter_mut()) {
-                feature_weights(features, lane.w, lane.dx, -dy, &mut buf.wfeat[..lane.w.area()]);
             }
         }
         for (j, job) in jobs.iter().enumerate() {
@@ -1031,31 +1024,37 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
 /// `t_f = -log2(e) max(0, max_j Phi_j^2)` on `rect` for offset `(dx, dy)`,
 /// the feature weight's argument for [`exp2_weight`] (each feature's
 /// `inv_den` already holds `-log2(e) / channels`): one pass per feature and
-/// row ([`fold_feature_term`]), folded into `out` by a minimum.
+/// row ([`fold_feature_row`]), folded into `out` by a minimum.
 #[inline(always)]
 fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32]) {
     let w = rect.width();
     for (ri, y) in (rect.y0..rect.y1).enumerate() {
         let row = &mut out[ri * w..(ri + 1) * w];
         for (j, feat) in features.iter().enumerate() {
-            let at = (y, dy, rect.x0, rect.x1, dx, j == 0);
-            match feat.values.len() {
-                1 => fold_feature_rows::<1>(row, feat, at),
-                2 => fold_feature_rows::<2>(row, feat, at),
-                3 => fold_feature_rows::<3>(row, feat, at),
-                4 => fold_feature_rows::<4>(row, feat, at),
-                _ => {
-                    fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
-                        planes.iter().map(|p| p.row(y, x0, x1)).collect()
-                    }
-                    let (x0, x1) = (rect.x0, rect.x1);
-                    let (fp, fq) = (rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
-                    let var = feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx)));
-                    let inv_den = rows(&feat.inv_den, y, x0, x1);
-                    let var = var.as_ref().map(|(p, q)| (&p[..], &q[..]));
-                    fold_feature_term_any(row, &fp, &fq, var, &inv_den, j == 0);
-                }
+            fold_feature_row(row, feat, (y, dy, rect.x0, rect.x1, dx, j == 0));
+        }
+    }
+}
+
+/// One feature's [`fold_feature_term`] on row `y` (columns `x0..x1`) for
+/// offset `(dx, dy)`, into `out` (from 0 when `first`).
+#[inline(always)]
+fn fold_feature_row(out: &mut [f32], feat: &GuideFeature, at: (i64, i64, i64, i64, i64, bool)) {
+    let (y, dy, x0, x1, dx, first) = at;
+    match feat.values.len() {
+        1 => fold_feature_rows::<1>(out, feat, at),
+        2 => fold_feature_rows::<2>(out, feat, at),
+        3 => fold_feature_rows::<3>(out, feat, at),
+        4 => fold_feature_rows::<4>(out, feat, at),
+        _ => {
+            fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
+                planes.iter().map(|p| p.row(y, x0, x1)).collect()
             }
+            let (fp, fq) = (rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
+            let var = feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx)));
+            let inv_den = rows(&feat.inv_den, y, x0, x1);
+            let var = var.as_ref().map(|(p, q)| (&p[..], &q[..]));
+            fold_feature_term_any(out, &fp, &fq, var, &inv_den, first);
         }
     }
 }
@@ -1081,11 +1080,13 @@ fn fold_feature_rows<const C: usize>(
     if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
 }
 
-/// [`feature_weights`] of the offsets `n = (dx, dy)` and `-n` together, for
-/// guides without variance: the forward lane's weights on `fwd.0` (pixels
-/// `p`) and the mirror lane's on `mir.0` (pixels `p + n`), from one square
-/// sum per feature and pixel pair ([`feature_square_sum`], the same bits
-/// either way), each multiplied by its own pixel's denominator.
+/// [`feature_weights`] of the offsets `n = (dx, dy)` and `-n` together: the
+/// forward lane's weights on `fwd.0` (pixels `p`) and the mirror lane's on
+/// `mir.0` (pixels `p + n`). A guide without variance gives one square sum
+/// per pixel pair ([`feature_square_sum`], the same bits either way) that
+/// each lane multiplies by its own pixel's denominator; a guide with
+/// variance (whose numerators differ) gives each lane's terms row by row as
+/// [`feature_weights`] does. `square_sums` holds one row per guide.
 #[inline(always)]
 fn pair_feature_weights<'a>(
     features: &[GuideFeature],
@@ -1104,7 +1105,7 @@ fn pair_feature_weights<'a>(
     };
     let w = u.width();
     for y in u.y0..u.y1 {
-        for (j, feat) in features.iter().enumerate() {
+        for (j, feat) in features.iter().enumerate().filter(|(_, f)| f.variance.is_none()) {
             let out = &mut square_sums[j * w..(j + 1) * w];
             let at = (y, dy, u.x0, u.x1, dx);
             match feat.values.len() {
@@ -1122,18 +1123,25 @@ fn pair_feature_weights<'a>(
                 }
             }
         }
-        // Each lane: its row of pixels `p` (forward) or `p + n` (mirror).
-        for (rect, out, (sx, sy)) in [(rf, &mut fwd, (0, 0)), (rm, &mut mir, (dx, dy))] {
+        // Each lane: its row of pixels `p` (forward, offset `n`) or `p + n`
+        // (mirror, offset `-n`).
+        for (rect, out, mirror) in [(rf, &mut fwd, false), (rm, &mut mir, true)] {
             let (Some(r), Some((_, out))) = (rect, out) else { continue };
             if !(r.y0..r.y1).contains(&y) {
                 continue;
             }
             let row = &mut out[(y - r.y0) as usize * r.width()..][..r.width()];
             let from = (r.x0 - u.x0) as usize;
+            // The lane's own row, columns and offset.
+            let (ly, lx0, lx1, ldx, ldy) =
+                if mirror { (y + dy, r.x0 + dx, r.x1 + dx, -dx, -dy) } else { (y, r.x0, r.x1, dx, dy) };
             for (j, feat) in features.iter().enumerate() {
-                let sums = &square_sums[j * w + from..][..r.width()];
-                let inv = feat.inv_den[0].row(y + sy, r.x0 + sx, r.x1 + sx);
-                fold_feature_product(row, sums, inv, j == 0);
+                if feat.variance.is_some() {
+                    fold_feature_row(row, feat, (ly, ldy, lx0, lx1, ldx, j == 0));
+                } else {
+                    let sums = &square_sums[j * w + from..][..r.width()];
+                    fold_feature_product(row, sums, feat.inv_den[0].row(ly, lx0, lx1), j == 0);
+                }
             }
         }
     }
