@@ -1047,12 +1047,9 @@ fn fold_feature_row(out: &mut [f32], feat: &GuideFeature, at: (i64, i64, i64, i6
         3 => fold_feature_rows::<3>(out, feat, at),
         4 => fold_feature_rows::<4>(out, feat, at),
         _ => {
-            fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
-                planes.iter().map(|p| p.row(y, x0, x1)).collect()
-            }
-            let (fp, fq) = (rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
-            let var = feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx)));
-            let inv_den = rows(&feat.inv_den, y, x0, x1);
+            let (fp, fq) = (all_rows(&feat.values, y, x0, x1), all_rows(&feat.values, y + dy, x0 + dx, x1 + dx));
+            let var = feat.variance.as_ref().map(|v| (all_rows(v, y, x0, x1), all_rows(v, y + dy, x0 + dx, x1 + dx)));
+            let inv_den = all_rows(&feat.inv_den, y, x0, x1);
             let var = var.as_ref().map(|(p, q)| (&p[..], &q[..]));
             fold_feature_term_any(out, &fp, &fq, var, &inv_den, first);
         }
@@ -1067,14 +1064,11 @@ fn fold_feature_rows<const C: usize>(
     feat: &GuideFeature,
     (y, dy, x0, x1, dx, first): (i64, i64, i64, i64, i64, bool),
 ) {
-    fn rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
-        std::array::from_fn(|c| planes[c].row(y, x0, x1))
-    }
     let last = feat.inv_den.len() - 1;
     let rows = FeatureRows::<C> {
-        fp: rows(&feat.values, y, x0, x1),
-        fq: rows(&feat.values, y + dy, x0 + dx, x1 + dx),
-        var: feat.variance.as_ref().map(|v| (rows(v, y, x0, x1), rows(v, y + dy, x0 + dx, x1 + dx))),
+        fp: channel_rows(&feat.values, y, x0, x1),
+        fq: channel_rows(&feat.values, y + dy, x0 + dx, x1 + dx),
+        var: feat.variance.as_ref().map(|v| (channel_rows(v, y, x0, x1), channel_rows(v, y + dy, x0 + dx, x1 + dx))),
         inv_den: std::array::from_fn(|c| feat.inv_den[c.min(last)].row(y, x0, x1)),
     };
     if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
@@ -1114,11 +1108,8 @@ fn pair_feature_weights<'a>(
                 3 => square_sum_rows::<3>(out, feat, at),
                 4 => square_sum_rows::<4>(out, feat, at),
                 _ => {
-                    fn rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
-                        planes.iter().map(|p| p.row(y, x0, x1)).collect()
-                    }
-                    let fp = rows(&feat.values, y, u.x0, u.x1);
-                    let fq = rows(&feat.values, y + dy, u.x0 + dx, u.x1 + dx);
+                    let fp = all_rows(&feat.values, y, u.x0, u.x1);
+                    let fq = all_rows(&feat.values, y + dy, u.x0 + dx, u.x1 + dx);
                     feature_square_sum_any(out, &fp, &fq);
                 }
             }
@@ -1155,8 +1146,20 @@ fn square_sum_rows<const C: usize>(
     feat: &GuideFeature,
     (y, dy, x0, x1, dx): (i64, i64, i64, i64, i64),
 ) {
-    fn rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
-        std::array::from_fn(|c| planes[c].row(y, x0, x1))
-    }
-    feature_square_sum::<C>(out, rows(&feat.values, y, x0, x1), rows(&feat.values, y + dy, x0 + dx, x1 + dx));
+    feature_square_sum::<C>(
+        out,
+        channel_rows(&feat.values, y, x0, x1),
+        channel_rows(&feat.values, y + dy, x0 + dx, x1 + dx),
+    );
+}
+
+/// Row `y`, columns `x0..x1`, of each of the first `C` planes.
+#[inline(always)]
+fn channel_rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
+    std::array::from_fn(|c| planes[c].row(y, x0, x1))
+}
+
+/// Row `y`, columns `x0..x1`, of every plane.
+fn all_rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
+    planes.iter().map(|p| p.row(y, x0, x1)).collect()
 }
