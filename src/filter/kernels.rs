@@ -262,10 +262,7 @@ pub struct FeatureRows<'a, const C: usize> {
 pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], rows: &FeatureRows<'_, C>) {
     let n = out.len();
     let (fp, fq) = (rows.fp.map(|r| &r[..n]), rows.fq.map(|r| &r[..n]));
-    let fold = |o: f32, t: f32| {
-        let o = if FIRST { 0.0 } else { o };
-        if t < o { t } else { o }
-    };
+    let fold = |o: f32, t: f32| fold_min(if FIRST { 0.0 } else { o }, t);
     match rows.var {
         None => {
             let inv = &rows.inv_den[0][..n];
@@ -310,8 +307,7 @@ pub fn fold_feature_term_any(
             Some((vp, vq)) => (0..fp.len())
                 .fold(0.0f32, |a, c| variance_step(a, fp[c][i], fq[c][i], vp[c][i], vq[c][i], inv_den[c][i])),
         };
-        let o = if first { 0.0 } else { out[i] };
-        out[i] = if t < o { t } else { o };
+        out[i] = fold_min(if first { 0.0 } else { out[i] }, t);
     }
 }
 
@@ -348,15 +344,20 @@ pub fn fold_feature_product(out: &mut [f32], s: &[f32], inv: &[f32], first: bool
     let (s, inv) = (&s[..n], &inv[..n]);
     if first {
         for i in 0..n {
-            let t = s[i] * inv[i];
-            out[i] = if t < 0.0 { t } else { 0.0 };
+            out[i] = fold_min(0.0, s[i] * inv[i]);
         }
     } else {
         for i in 0..n {
-            let t = s[i] * inv[i];
-            out[i] = if t < out[i] { t } else { out[i] };
+            out[i] = fold_min(out[i], s[i] * inv[i]);
         }
     }
+}
+
+/// The guides' NaN-safe minimum: `t` replaces `o` only when it is smaller,
+/// so a NaN term never wins over a finite one.
+#[inline(always)]
+fn fold_min(o: f32, t: f32) -> f32 {
+    if t < o { t } else { o }
 }
 
 /// `s + (p - q)^2`, one fused multiply-add.
