@@ -211,7 +211,7 @@ mod tests {
             block_rows: 16,
             out_block_rows: 16,
             threads: 2,
-            kernel: ScratchShape { search_radius: 10, patch_radius: 3, accumulators: 8, guides: 3 },
+            kernel: ScratchShape { search_radius: 10, patch_radius: 3, jobs: 2, accumulators: 8, guides: 3 },
         }
     }
 

@@ -197,6 +197,7 @@ fn plan_with(
                 search_radius: params.search_radius,
                 patch_radius: params.patch_radius,
                 // Every denoised channel's numerator, one denominator per job.
+                jobs: shape.layers.max(1),
                 accumulators: cp.output_idx.len() + shape.layers.max(1),
                 guides: shape.feature_has_variance.len(),
             },

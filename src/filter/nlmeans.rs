@@ -95,6 +95,8 @@ pub struct ScratchShape {
     pub search_radius: usize,
     /// Patch radius `f`.
     pub patch_radius: usize,
+    /// Jobs filtered together (light layers, or 1).
+    pub jobs: usize,
     /// Numerator and denominator planes of all jobs (at least).
     pub accumulators: usize,
     /// Number of guide features (0 = unguided).
@@ -104,28 +106,23 @@ pub struct ScratchShape {
 impl ScratchShape {
     /// Bytes of working memory one block of the kernel holds while it runs
     /// (one block per worker thread at a time), for a region of
-    /// `width x height`: the numerators and denominators, the lanes' rings and
-    /// rows, the guides' weight planes and square-sum rows, and the stored
-    /// mirror distances.
+    /// `width x height`: the numerators and denominators, every job's lanes'
+    /// rings and rows, the guides' rows and the shared row buffers.
     /// Independent of the frame size.
     pub fn bytes(&self, width: usize, height: usize) -> u64 {
         let (bw, bh) = (width.clamp(1, BLOCK_W) as u64, height.clamp(1, BLOCK_H) as u64);
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
-        let (outer_w, outer_h) = (bw + 4 * f, bh + 4 * f);
+        let mid_w = bw + 2 * f;
         let lanes = 2 * GROUP_MAX as u64;
-        // Per lane: the rings `h` and their pair sums `q` of both boxes, the
-        // mean-weight row, each with up to 15 samples of alignment.
-        let ring_rows = stride(bw as usize + 2 * f as usize) as u64 + stride(bw as usize) as u64;
-        let rings = lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
-        // Per lane a plane of feature weights, and one row of square sums per guide.
-        let guides = if self.guides > 0 {
-            lanes * (bw + 2 * f) * (bh + 2 * f) + self.guides as u64 * (bw + 2 * f + r)
-        } else {
-            0
-        };
-        let mirror = GROUP_MAX as u64 * (outer_w + r) * (outer_h + r);
-        let rows = 3 * (outer_w + r + 15) + bw + 2 * f;
-        4 * (self.accumulators as u64 * bw * bh + rings + guides + mirror + rows)
+        // Per job and lane: the rings `h` and their pair sums `q` of both
+        // boxes, the mean-weight row, each with up to 15 samples of alignment.
+        let ring_rows = stride(mid_w as usize) as u64 + stride(bw as usize) as u64;
+        let rings = self.jobs.max(1) as u64 * lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
+        // Per lane a row of the guides' weight argument; a row of square sums per guide.
+        let guides = if self.guides > 0 { lanes * (mid_w + 15) + self.guides as u64 * (mid_w + r) } else { 0 };
+        // The pair's distance, mirror and pair-sum rows, and the weight row.
+        let rows = 3 * (bw + 4 * f + r + 15) + mid_w + 15;
+        4 * (self.accumulators as u64 * bw * bh + rings + guides + rows)
     }
 }
 
@@ -172,14 +169,14 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 /// kernel it inlines) is compiled for that tier's instruction set.
 ///
 /// The offsets are visited as [`offset_schedule`] lists them: the centre,
-/// then groups of up to [`GROUP_MAX`] offsets `n` sharing `dy >= 0`, each
-/// followed by the group of their mirrors `-n`. For a group, the distances of
-/// `n` and `-n` are computed together (their common terms once, see
-/// [`kernels::colour_distance_pair_rgb`](super::kernels::colour_distance_pair_rgb)):
-/// the forward lanes use them at once, the mirror distances are stored in one
-/// plane per pair and read when the mirror group runs.
+/// then steps of up to [`GROUP_MAX`] offsets `n` sharing `dy >= 0`, each
+/// with their mirrors `-n`. For a step, the distances of `n` and `-n` are
+/// computed together (their common terms once, see
+/// [`kernels::colour_distance_pair_rgb`](super::kernels::colour_distance_pair_rgb)),
+/// and the forward lanes, the mirror lanes and every job (light layer) run in
+/// lock step ([`run_step`]).
 ///
-/// For each lane (offset) of a group, three passes over the block,
+/// For each lane (offset and job) of a step, three passes over the block,
 /// interleaved row by row so that no block-sized intermediate exists:
 ///
 /// 1. per row of `d_rect`: the per-pixel distance (summed over channels) and
@@ -225,34 +222,36 @@ fn filter_block_body(
     // Ring buffers of the last 2f + 1 rows of horizontal sums: a vertical
     // window never reaches further back.
     let cap = 2 * s.patch_radius + 1;
-    // Forward lanes use buffers 0..GROUP_MAX, mirror lanes the next GROUP_MAX.
-    let mut lanes: Vec<LaneBuffers> = (0..2 * GROUP_MAX)
+    // Every job's forward and mirror lanes (see [`lane_buf`]).
+    let mut lanes: Vec<LaneBuffers> = (0..jobs.len() * 2 * GROUP_MAX)
         .map(|_| LaneBuffers {
             h1: Aligned::zeroed(stride(mid.width()) * cap),
             h2: Aligned::zeroed(stride(block.width()) * cap),
             q1: Aligned::zeroed(stride(mid.width()) * cap),
             q2: Aligned::zeroed(stride(block.width()) * cap),
             mean_w: Aligned::zeroed(block.width()),
-            wfeat: if features.is_empty() { Vec::new() } else { vec![0.0f32; mid.area()] },
         })
         .collect();
-    // The mirror distances of each pair, stored for the mirror lanes: at most
-    // `outer` widened by `r` in both directions.
-    let plane_len = (outer.width() + s.search_radius) * (outer.height() + s.search_radius);
-    let mut mirror_planes: Vec<Vec<f32>> = (0..GROUP_MAX).map(|_| vec![0.0f32; plane_len]).collect();
+    // A pair's rows span at most `outer` widened by `r`.
+    let pair_w = outer.width() + s.search_radius;
     let mut scratch = Scratch {
-        drow: Aligned::zeroed(outer.width() + s.search_radius),
-        mrow: vec![0.0f32; outer.width()],
+        drow: Aligned::zeroed(pair_w),
+        mrow: Aligned::zeroed(pair_w),
         wrow: Aligned::zeroed(mid.width()),
-        pairs: Aligned::zeroed(outer.width() + s.search_radius),
+        pairs: Aligned::zeroed(pair_w),
+        tf: if features.is_empty() {
+            Vec::new()
+        } else {
+            (0..2 * GROUP_MAX).map(|_| Aligned::zeroed(mid.width())).collect()
+        },
+        square_sums: vec![0.0f32; features.len() * (mid.width() + s.search_radius)],
     };
-    // Rows of the guides' square sums of a pair (see `pair_feature_weights`).
-    let mut square_sums = vec![0.0f32; features.len() * (mid.width() + s.search_radius)];
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
         Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
     };
 
+    let ctx = StepCtx { jobs, features, f, cap, block, s, k2 };
     for step in offset_schedule(r) {
         let dy = step.dy;
         if !step.paired {
@@ -266,16 +265,8 @@ fn filter_block_body(
                     g += 1;
                 }
             }
-            let group = &group[..g];
-            if !features.is_empty() {
-                for (lane, buf) in group.iter().zip(lanes.iter_mut()) {
-                    feature_weights(features, lane.w, lane.dx, dy, &mut buf.wfeat[..lane.w.area()]);
-                }
-            }
-            for (j, job) in jobs.iter().enumerate() {
-                let ctx = GroupCtx { job, dy, features: !features.is_empty(), f, cap, block, s, k2 };
-                run_group(&ctx, &mut num[j], &mut den[j], group, &mut lanes, &mut Source::Direct, &mut scratch);
-            }
+            let sides = [Side::new(&group[..g], dy, 0), Side::new(&[], -dy, dy)];
+            run_step(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
             continue;
         }
         // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
@@ -283,7 +274,6 @@ fn filter_block_body(
         // either direction needs: `p` for `n`, `p + n` for `-n`.
         let mut pairs = [PairLane { dx: 0, u: Rect::EMPTY, fwd: None, mir: None }; GROUP_MAX];
         let (mut fwd, mut mir) = ([Lane::EMPTY; GROUP_MAX], [Lane::EMPTY; GROUP_MAX]);
-        let mut mir_src = [(0usize, Rect::EMPTY); GROUP_MAX];
         let (mut np, mut nf, mut nm) = (0, 0, 0);
         for dx in step.dxs {
             let (lf, lm) = (geometry(dx, dy), geometry(-dx, -dy));
@@ -306,7 +296,6 @@ fn filter_block_body(
             }
             if !lm.acc.is_empty() {
                 mir[nm] = lm;
-                mir_src[nm] = (np, u.translate(dx, dy));
                 mir_idx = Some(nm);
                 nm += 1;
             }
@@ -316,24 +305,8 @@ fn filter_block_body(
         if np == 0 {
             continue;
         }
-        let (pairs, fwd, mir, mir_src) = (&pairs[..np], &fwd[..nf], &mir[..nm], &mir_src[..nm]);
-        if !features.is_empty() {
-            // Both lanes of each pair in one pass over the guides.
-            let (fl, ml) = lanes.split_at_mut(GROUP_MAX);
-            for pair in pairs {
-                let f_out = pair.fwd.map(|g| (fwd[g].w, &mut fl[g].wfeat[..fwd[g].w.area()]));
-                let m_out = pair.mir.map(|g| (mir[g].w, &mut ml[g].wfeat[..mir[g].w.area()]));
-                pair_feature_weights(features, (pair.dx, dy), f_out, m_out, &mut square_sums);
-            }
-        }
-        for (j, job) in jobs.iter().enumerate() {
-            let ctx = GroupCtx { job, dy, features: !features.is_empty(), f, cap, block, s, k2 };
-            let mut source = Source::Pair { pairs, planes: &mut mirror_planes };
-            run_group(&ctx, &mut num[j], &mut den[j], fwd, &mut lanes[..GROUP_MAX], &mut source, &mut scratch);
-            let ctx = GroupCtx { dy: -dy, ..ctx };
-            let mut source = Source::Mirror { planes: &mirror_planes, src: mir_src };
-            run_group(&ctx, &mut num[j], &mut den[j], mir, &mut lanes[GROUP_MAX..], &mut source, &mut scratch);
-        }
+        let sides = [Side::new(&fwd[..nf], dy, 0), Side::new(&mir[..nm], -dy, dy)];
+        run_step(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
     }
 
     num.into_iter()
@@ -352,12 +325,11 @@ fn filter_block_body(
         .collect()
 }
 
-/// What a group's pass runs on, besides its lanes.
+/// What every step of a block runs on, besides its lanes.
 #[derive(Clone, Copy)]
-struct GroupCtx<'a, 'j> {
-    job: &'a Job<'j>,
-    dy: i64,
-    features: bool,
+struct StepCtx<'a, 'j> {
+    jobs: &'a [Job<'j>],
+    features: &'a [GuideFeature],
     f: i64,
     cap: usize,
     block: Rect,
@@ -365,14 +337,25 @@ struct GroupCtx<'a, 'j> {
     k2: f32,
 }
 
-/// Row buffers shared by every group of a block.
+/// Row buffers shared by every step of a block.
 struct Scratch {
+    /// A pair's (or a lane's) distance row.
     drow: Aligned,
-    /// The discarded mirror row of [`Source::Direct`].
-    mrow: Vec<f32>,
+    /// A pair's mirror distance row (discarded for a lane computed alone).
+    mrow: Aligned,
     wrow: Aligned,
     /// Pair sums of a row (see [`pair_taps_sum`]).
     pairs: Aligned,
+    /// The guides' weight argument of each lane's current weight row
+    /// (lane `g` of side `s` in row `s * GROUP_MAX + g`); empty without guides.
+    tf: Vec<Aligned>,
+    /// One row of square sums per guide (see [`pair_feature_row`]).
+    square_sums: Vec<f32>,
+}
+
+/// The buffers of job `j`, side `side` (0 forward, 1 mirror), lane `g`.
+fn lane_buf(j: usize, side: usize, g: usize) -> usize {
+    (2 * j + side) * GROUP_MAX + g
 }
 
 /// One pair of offsets `n = (dx, dy)` and `-n`.
@@ -387,146 +370,200 @@ struct PairLane {
     mir: Option<usize>,
 }
 
-/// Where a group's per-pixel distances come from.
-enum Source<'a> {
-    /// Computed for each lane.
-    Direct,
-    /// Computed for the pairs, over their `u`: the forward lanes take the rows
-    /// of `n`, and the rows of `-n` are stored in `planes[k]` (pair `k`), which
-    /// covers `u + n`.
-    Pair { pairs: &'a [PairLane], planes: &'a mut [Vec<f32>] },
-    /// Read from the stored planes: lane `g` reads plane `src[g].0`, covering `src[g].1`.
-    Mirror { planes: &'a [Vec<f32>], src: &'a [(usize, Rect)] },
+/// The lanes of a step on one side: the forward lanes (offsets `n`), whose
+/// rows are the step's rows, or the mirror lanes (offsets `-n`), whose rows
+/// are `shift = dy` below (pair row `y` gives pixel `p` in row `y` its
+/// distance for `n` and pixel `p + n` in row `y + dy` its distance for `-n`).
+#[derive(Clone, Copy)]
+struct Side<'a> {
+    lanes: &'a [Lane],
+    /// The lanes' vertical offset.
+    dy: i64,
+    /// A lane's row minus the step's row.
+    shift: i64,
+    /// The rows (of the lanes) of the distances, the weights and the
+    /// accumulation, equal for every lane of a side (they depend on `dy` only).
+    d_y: (i64, i64),
+    w_y: (i64, i64),
+    a_y: (i64, i64),
 }
 
-/// Filter one group of offsets (sharing `dy`) for one job: the three passes
-/// of every lane in lock step, row by row, and one fused accumulation per row.
+impl<'a> Side<'a> {
+    fn new(lanes: &'a [Lane], dy: i64, shift: i64) -> Side<'a> {
+        let (d_y, w_y, a_y) = match lanes.first() {
+            Some(l) => ((l.d.y0, l.d.y1), (l.w.y0, l.w.y1), (l.acc.y0, l.acc.y1)),
+            None => ((0, 0), (0, 0), (0, 0)),
+        };
+        Side { lanes, dy, shift, d_y, w_y, a_y }
+    }
+}
+
+/// Whether row `y` lies in `rows`.
+fn in_rows(rows: (i64, i64), y: i64) -> bool {
+    rows.0 <= y && y < rows.1
+}
+
+/// Filter one step of the schedule for every job: the three passes of every
+/// lane of both sides (and every job) in lock step, row by row.
+///
+/// The step's rows are the pairs' rows (or, for lanes computed alone, the
+/// lanes' own). A pair's distance row feeds its forward lane at once and its
+/// mirror lane `dy` rows lower, and both lanes' later passes stay in step:
+/// they become ready at the same step row (a lane's window ends at the last
+/// row of `valid(n)`, which is the mirror's last row minus `dy`). So no
+/// distance plane is stored, the guides' weight argument of a row is
+/// computed once for every job (and, without variance, once for both lanes
+/// of a pair), and each numerator receives, per pixel, the mirror group's
+/// terms before the forward group's (`dy > 0`: the mirror reaches the row
+/// first; `dy = 0`: forward, then mirror), a fixed order for every block.
 #[inline(always)]
-fn run_group(
-    ctx: &GroupCtx<'_, '_>,
-    num: &mut [Aligned],
-    den: &mut [f32],
-    group: &[Lane],
+fn run_step(
+    ctx: &StepCtx<'_, '_>,
+    num: &mut [Vec<Aligned>],
+    den: &mut [Aligned],
+    sides: [Side<'_>; 2],
+    pairs: Option<&[PairLane]>,
     bufs: &mut [LaneBuffers],
-    source: &mut Source<'_>,
     scratch: &mut Scratch,
 ) {
-    let GroupCtx { job, dy, features, f, cap, block, s, k2 } = *ctx;
-    // Row ranges, equal for every lane of the group (they depend on `dy` only).
-    let (d_y, w_y, a_y, valid_y1) = match group.first() {
-        Some(l) => ((l.d.y0, l.d.y1), (l.w.y0, l.w.y1), (l.acc.y0, l.acc.y1), l.valid.y1),
-        None => ((0, 0), (0, 0), (0, 0), 0),
+    let StepCtx { jobs, features, f, cap, block, s, k2 } = *ctx;
+    let dy = sides[0].dy;
+    // The step rows (a lane's rows minus its side's shift) a pass walks.
+    let span = |rows: fn(&Side<'_>) -> (i64, i64)| {
+        sides
+            .iter()
+            .filter(|side| !side.lanes.is_empty())
+            .map(|side| (rows(side).0 - side.shift, rows(side).1 - side.shift))
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    };
+    let (Some(w_rows), Some(a_rows)) = (span(|s| s.w_y), span(|s| s.a_y)) else { return };
+    // The last step row of a window: the same for both sides.
+    let Some(valid_y1) = sides.iter().find_map(|side| side.lanes.first().map(|l| l.valid.y1 - side.shift)) else {
+        return;
     };
     let last_row = |y: i64| (y + f).min(valid_y1 - 1);
-    // The rows the source walks: a pair's shared rows start above the forward lanes' rows.
-    let rows = match source {
-        Source::Pair { pairs, .. } => pairs[0].u.y0..pairs[0].u.y1,
-        _ => d_y.0..d_y.1,
+    let rows = match pairs {
+        Some(p) => p[0].u.y0..p[0].u.y1,
+        None => sides[0].d_y.0..sides[0].d_y.1,
     };
-    // Channel mean and `-log2(e)`, folded into the patch mean's scale.
-    let kd = log2_distance_scale(job.values.len());
-    let (mut next_w, mut next_a) = (w_y.0, a_y.0);
+    let Scratch { drow, mrow, wrow, pairs: psum, tf, square_sums } = scratch;
+    let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
     for yd in rows {
-        // 1. Distance rows and their horizontal sums.
-        match source {
-            Source::Direct => {
-                for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
-                    let (d_rect, w) = (lane.d, lane.d.width());
-                    // The pair kernel with its mirror row discarded.
-                    let (d, m) = (&mut scratch.drow[..w], &mut scratch.mrow[..w]);
-                    distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
-                    push_h1(lane, buf, d, d_rect.x0, yd - d_y.0, f, cap, &mut scratch.pairs);
-                }
-            }
-            Source::Pair { pairs, planes } => {
-                for (k, pair) in pairs.iter().enumerate() {
-                    let (u_rect, dx) = (pair.u, pair.dx);
-                    let w = u_rect.width();
-                    let ri = (yd - u_rect.y0) as usize;
-                    // The mirror row goes straight into its plane.
-                    let (d, m) = (&mut scratch.drow[..w], &mut planes[k][ri * w..(ri + 1) * w]);
-                    distance_rows(job, d, m, yd, dy, (u_rect.x0, u_rect.x1), dx, s, k2);
-                    if let Some(g) = pair.fwd
-                        && (d_y.0..d_y.1).contains(&yd)
-                    {
-                        let lane = &group[g];
-                        let from = (lane.d.x0 - u_rect.x0) as usize;
-                        push_h1(
-                            lane,
-                            &mut bufs[g],
-                            &d[from..from + lane.d.width()],
-                            lane.d.x0,
-                            yd - d_y.0,
-                            f,
-                            cap,
-                            &mut scratch.pairs,
-                        );
+        // 1. Distance rows and their horizontal sums, every job.
+        for (j, job) in jobs.iter().enumerate() {
+            match pairs {
+                None => {
+                    let side = &sides[0];
+                    for (g, lane) in side.lanes.iter().enumerate() {
+                        let (d_rect, w) = (lane.d, lane.d.width());
+                        // The pair kernel with its mirror row discarded.
+                        let (d, m) = (&mut drow[..w], &mut mrow[..w]);
+                        distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
+                        let buf = &mut bufs[lane_buf(j, 0, g)];
+                        push_h1(lane, buf, d, d_rect.x0, yd - side.d_y.0, f, cap, psum);
                     }
                 }
-            }
-            Source::Mirror { planes, src } => {
-                for ((lane, buf), &(k, rect)) in group.iter().zip(bufs.iter_mut()).zip(src.iter()) {
-                    let w = rect.width();
-                    let start = (yd - rect.y0) as usize * w + (lane.d.x0 - rect.x0) as usize;
-                    push_h1(
-                        lane,
-                        buf,
-                        &planes[k][start..start + lane.d.width()],
-                        lane.d.x0,
-                        yd - d_y.0,
-                        f,
-                        cap,
-                        &mut scratch.pairs,
-                    );
+                Some(pairs) => {
+                    for pair in pairs {
+                        let (u, dx) = (pair.u, pair.dx);
+                        let w = u.width();
+                        let (d, m) = (&mut drow[..w], &mut mrow[..w]);
+                        distance_rows(job, d, m, yd, dy, (u.x0, u.x1), dx, s, k2);
+                        // Row `d` holds pixels `p` from `u.x0`, row `m` pixels `p + n`.
+                        for (si, row, x0, g) in [(0, &*d, u.x0, pair.fwd), (1, &*m, u.x0 + dx, pair.mir)] {
+                            let side = &sides[si];
+                            let yl = yd + side.shift;
+                            let Some(g) = g.filter(|_| in_rows(side.d_y, yl)) else { continue };
+                            let lane = &side.lanes[g];
+                            let from = (lane.d.x0 - x0) as usize;
+                            let row = &row[from..from + lane.d.width()];
+                            push_h1(lane, &mut bufs[lane_buf(j, si, g)], row, lane.d.x0, yl - side.d_y.0, f, cap, psum);
+                        }
+                    }
                 }
             }
         }
         // 2. Patch distances, weights, and their horizontal sums.
-        while next_w < w_y.1 && last_row(next_w) <= yd {
+        while next_w < w_rows.1 && last_row(next_w) <= yd {
             let y = next_w;
             next_w += 1;
-            for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
-                let ww = lane.w.width();
-                let wr = &mut scratch.wrow[..ww];
-                let ny = vertical_sums((&buf.h1, &buf.q1), cap, d_y.0, y, lane.valid, f, wr);
-                // The patch mean's scale (with `kd`) applied inside the weight's loop.
-                if !features {
-                    map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |_, t| exp2_weight(t));
-                } else {
-                    // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
-                    let ri = (y - w_y.0) as usize;
-                    let tf = &buf.wfeat[ri * ww..(ri + 1) * ww];
-                    map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |i, t| {
-                        exp2_weight(if tf[i] < t { tf[i] } else { t })
-                    });
-                }
-                let (slot, aw, st) = ((y - w_y.0) as usize % cap, lane.acc.width(), buf.h2.len() / cap);
-                let h2 = &mut buf.h2[slot * st..slot * st + aw];
-                window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, h2, &mut scratch.pairs);
-                pair_row(&buf.h2, &mut buf.q2, cap, (y - w_y.0) as usize, aw);
+            if !features.is_empty() {
+                guide_rows(features, &sides, pairs, y, tf, square_sums);
             }
-            // 3. Mean weights of every lane, accumulated in one pass.
-            while next_a < a_y.1 && last_row(next_a) <= y {
+            for (j, job) in jobs.iter().enumerate() {
+                // Channel mean and `-log2(e)`, folded into the patch mean's scale.
+                let kd = log2_distance_scale(job.values.len());
+                for (si, side) in sides.iter().enumerate() {
+                    let yl = y + side.shift;
+                    if !in_rows(side.w_y, yl) {
+                        continue;
+                    }
+                    for (g, lane) in side.lanes.iter().enumerate() {
+                        let buf = &mut bufs[lane_buf(j, si, g)];
+                        let ww = lane.w.width();
+                        let wr = &mut wrow[..ww];
+                        let ny = vertical_sums((&buf.h1, &buf.q1), cap, side.d_y.0, yl, lane.valid, f, wr);
+                        // The patch mean's scale (with `kd`) applied inside the weight's loop.
+                        if features.is_empty() {
+                            map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |_, t| exp2_weight(t));
+                        } else {
+                            // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
+                            let tf = &tf[si * GROUP_MAX + g][..ww];
+                            map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |i, t| {
+                                exp2_weight(if tf[i] < t { tf[i] } else { t })
+                            });
+                        }
+                        let k = (yl - side.w_y.0) as usize;
+                        let (slot, aw, st) = (k % cap, lane.acc.width(), buf.h2.len() / cap);
+                        let h2 = &mut buf.h2[slot * st..slot * st + aw];
+                        window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
+                        pair_row(&buf.h2, &mut buf.q2, cap, k, aw);
+                    }
+                }
+            }
+            // 3. Mean weights of every lane of a side, accumulated in one pass.
+            while next_a < a_rows.1 && last_row(next_a) <= y {
                 let ya = next_a;
                 next_a += 1;
-                for (lane, buf) in group.iter().zip(bufs.iter_mut()) {
-                    let aw = lane.acc.width();
-                    // Mean weights times the full window's count: numerators
-                    // and denominator share the factor, and it is exactly 1
-                    // where the window is not clipped (no multiply there).
-                    let mw = &mut buf.mean_w[..aw];
-                    let ny = vertical_sums((&buf.h2, &buf.q2), cap, w_y.0, ya, lane.valid, f, mw);
-                    scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
+                for (j, job) in jobs.iter().enumerate() {
+                    for (si, side) in sides.iter().enumerate() {
+                        let yl = ya + side.shift;
+                        if !in_rows(side.a_y, yl) {
+                            continue;
+                        }
+                        for (g, lane) in side.lanes.iter().enumerate() {
+                            let buf = &mut bufs[lane_buf(j, si, g)];
+                            let aw = lane.acc.width();
+                            // Mean weights times the full window's count: numerators
+                            // and denominator share the factor, and it is exactly 1
+                            // where the window is not clipped (no multiply there).
+                            let mw = &mut buf.mean_w[..aw];
+                            let ny = vertical_sums((&buf.h2, &buf.q2), cap, side.w_y.0, yl, lane.valid, f, mw);
+                            scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
+                        }
+                        let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match side.lanes.get(g) {
+                            Some(lane) => LaneRow {
+                                w: &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()],
+                                x0: lane.acc.x0,
+                                dx: lane.dx,
+                            },
+                            None => LaneRow { w: &[], x0: 0, dx: 0 },
+                        });
+                        accumulate(
+                            &mut num[j],
+                            &mut den[j],
+                            &job.values,
+                            &rows[..side.lanes.len()],
+                            yl,
+                            side.dy,
+                            block,
+                        );
+                    }
                 }
-                let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match group.get(g) {
-                    Some(lane) => LaneRow { w: &bufs[g].mean_w[..lane.acc.width()], x0: lane.acc.x0, dx: lane.dx },
-                    None => LaneRow { w: &[], x0: 0, dx: 0 },
-                });
-                accumulate(num, den, &job.values, &rows[..group.len()], ya, dy, block);
             }
         }
     }
-    debug_assert!(next_w == w_y.1 && next_a == a_y.1);
+    debug_assert!(next_w == w_rows.1 && next_a == a_rows.1);
 }
 
 /// The distances of row `y`, columns `x`, for offset `(dx, dy)` into `d` and
@@ -687,7 +724,6 @@ struct LaneBuffers {
     q1: Aligned,
     q2: Aligned,
     mean_w: Aligned,
-    wfeat: Vec<f32>,
 }
 
 /// One lane's row of mean weights, for columns from `x0`.
@@ -1021,17 +1057,41 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
     }
 }
 
-/// `t_f = -log2(e) max(0, max_j Phi_j^2)` on `rect` for offset `(dx, dy)`,
-/// the feature weight's argument for [`exp2_weight`] (each feature's
-/// `inv_den` already holds `-log2(e) / channels`): one pass per feature and
-/// row ([`fold_feature_row`]), folded into `out` by a minimum.
+/// The guides' weight argument `t_f = -log2(e) max(0, max_j Phi_j^2)` of
+/// step row `y` for every lane whose weight row it is (lane `g` of side `s`
+/// into `tf[s * GROUP_MAX + g]`; each feature's `inv_den` already holds
+/// `-log2(e) / channels`): one pass per feature and row, folded by a minimum.
 #[inline(always)]
-fn feature_weights(features: &[GuideFeature], rect: Rect, dx: i64, dy: i64, out: &mut [f32]) {
-    let w = rect.width();
-    for (ri, y) in (rect.y0..rect.y1).enumerate() {
-        let row = &mut out[ri * w..(ri + 1) * w];
-        for (j, feat) in features.iter().enumerate() {
-            fold_feature_row(row, feat, (y, dy, rect.x0, rect.x1, dx, j == 0));
+fn guide_rows(
+    features: &[GuideFeature],
+    sides: &[Side<'_>; 2],
+    pairs: Option<&[PairLane]>,
+    y: i64,
+    tf: &mut [Aligned],
+    square_sums: &mut [f32],
+) {
+    let dy = sides[0].dy;
+    match pairs {
+        None => {
+            if !in_rows(sides[0].w_y, y) {
+                return;
+            }
+            for (lane, row) in sides[0].lanes.iter().zip(tf.iter_mut()) {
+                let row = &mut row[..lane.w.width()];
+                for (j, feat) in features.iter().enumerate() {
+                    fold_feature_row(row, feat, (y, dy, lane.w.x0, lane.w.x1, lane.dx, j == 0));
+                }
+            }
+        }
+        Some(pairs) => {
+            let (tf_fwd, tf_mir) = tf.split_at_mut(GROUP_MAX);
+            let (fwd_row, mir_row) = (in_rows(sides[0].w_y, y), in_rows(sides[1].w_y, y + dy));
+            for pair in pairs {
+                let lane = |side: &Side<'_>, g: usize| side.lanes[g].w;
+                let fwd = pair.fwd.filter(|_| fwd_row).map(|g| (lane(&sides[0], g), &mut *tf_fwd[g]));
+                let mir = pair.mir.filter(|_| mir_row).map(|g| (lane(&sides[1], g), &mut *tf_mir[g]));
+                pair_feature_row(features, (pair.dx, dy), y, fwd, mir, square_sums);
+            }
         }
     }
 }
@@ -1074,65 +1134,59 @@ fn fold_feature_rows<const C: usize>(
     if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
 }
 
-/// [`feature_weights`] of the offsets `n = (dx, dy)` and `-n` together: the
-/// forward lane's weights on `fwd.0` (pixels `p`) and the mirror lane's on
-/// `mir.0` (pixels `p + n`). A guide without variance gives one square sum
-/// per pixel pair ([`feature_square_sum`], the same bits either way) that
-/// each lane multiplies by its own pixel's denominator; a guide with
-/// variance (whose numerators differ) gives each lane's terms row by row as
-/// [`feature_weights`] does. `square_sums` holds one row per guide.
+/// The guides' weight argument of the offsets `n = (dx, dy)` and `-n`
+/// together, for the pairs `(p, p + n)` with `p` in row `y`: the forward
+/// lane's row `y` (columns `fwd.0`, pixels `p`) and the mirror lane's row
+/// `y + dy` (columns `mir.0`, pixels `p + n`). A guide without variance
+/// gives one square sum per pixel pair ([`feature_square_sum`], the same
+/// bits either way) that each lane multiplies by its own pixel's
+/// denominator; a guide with variance (whose numerators differ) gives each
+/// lane's terms as [`fold_feature_row`] does. `square_sums` holds one row
+/// per guide.
 #[inline(always)]
-fn pair_feature_weights<'a>(
+fn pair_feature_row(
     features: &[GuideFeature],
     (dx, dy): (i64, i64),
-    mut fwd: Option<(Rect, &'a mut [f32])>,
-    mut mir: Option<(Rect, &'a mut [f32])>,
+    y: i64,
+    fwd: Option<(Rect, &mut [f32])>,
+    mir: Option<(Rect, &mut [f32])>,
     square_sums: &mut [f32],
 ) {
-    let rf = fwd.as_ref().map(|(r, _)| *r);
-    // The mirror lane's pixels, as the pixels `p` of the pairs `(p, p + n)`.
-    let rm = mir.as_ref().map(|(r, _)| r.translate(-dx, -dy));
-    let u = match (rf, rm) {
-        (Some(a), Some(b)) => Rect { x0: a.x0.min(b.x0), y0: a.y0.min(b.y0), x1: a.x1.max(b.x1), y1: a.y1.max(b.y1) },
+    // The columns of the pixels `p` either lane needs.
+    let xf = fwd.as_ref().map(|(r, _)| (r.x0, r.x1));
+    let xm = mir.as_ref().map(|(r, _)| (r.x0 - dx, r.x1 - dx));
+    let (x0, x1) = match (xf, xm) {
+        (Some(a), Some(b)) => (a.0.min(b.0), a.1.max(b.1)),
         (Some(a), None) | (None, Some(a)) => a,
         (None, None) => return,
     };
-    let w = u.width();
-    for y in u.y0..u.y1 {
-        for (j, feat) in features.iter().enumerate().filter(|(_, f)| f.variance.is_none()) {
-            let out = &mut square_sums[j * w..(j + 1) * w];
-            let at = (y, dy, u.x0, u.x1, dx);
-            match feat.values.len() {
-                1 => square_sum_rows::<1>(out, feat, at),
-                2 => square_sum_rows::<2>(out, feat, at),
-                3 => square_sum_rows::<3>(out, feat, at),
-                4 => square_sum_rows::<4>(out, feat, at),
-                _ => {
-                    let fp = all_rows(&feat.values, y, u.x0, u.x1);
-                    let fq = all_rows(&feat.values, y + dy, u.x0 + dx, u.x1 + dx);
-                    feature_square_sum_any(out, &fp, &fq);
-                }
+    let w = (x1 - x0) as usize;
+    for (j, feat) in features.iter().enumerate().filter(|(_, f)| f.variance.is_none()) {
+        let out = &mut square_sums[j * w..(j + 1) * w];
+        let at = (y, dy, x0, x1, dx);
+        match feat.values.len() {
+            1 => square_sum_rows::<1>(out, feat, at),
+            2 => square_sum_rows::<2>(out, feat, at),
+            3 => square_sum_rows::<3>(out, feat, at),
+            4 => square_sum_rows::<4>(out, feat, at),
+            _ => {
+                let fp = all_rows(&feat.values, y, x0, x1);
+                let fq = all_rows(&feat.values, y + dy, x0 + dx, x1 + dx);
+                feature_square_sum_any(out, &fp, &fq);
             }
         }
-        // Each lane: its row of pixels `p` (forward, offset `n`) or `p + n`
-        // (mirror, offset `-n`).
-        for (rect, out, mirror) in [(rf, &mut fwd, false), (rm, &mut mir, true)] {
-            let (Some(r), Some((_, out))) = (rect, out) else { continue };
-            if !(r.y0..r.y1).contains(&y) {
-                continue;
-            }
-            let row = &mut out[(y - r.y0) as usize * r.width()..][..r.width()];
-            let from = (r.x0 - u.x0) as usize;
-            // The lane's own row, columns and offset.
-            let (ly, lx0, lx1, ldx, ldy) =
-                if mirror { (y + dy, r.x0 + dx, r.x1 + dx, -dx, -dy) } else { (y, r.x0, r.x1, dx, dy) };
-            for (j, feat) in features.iter().enumerate() {
-                if feat.variance.is_some() {
-                    fold_feature_row(row, feat, (ly, ldy, lx0, lx1, ldx, j == 0));
-                } else {
-                    let sums = &square_sums[j * w + from..][..r.width()];
-                    fold_feature_product(row, sums, feat.inv_den[0].row(ly, lx0, lx1), j == 0);
-                }
+    }
+    // Each lane: its own row, columns and offset.
+    for (lane, mirror) in [(fwd, false), (mir, true)] {
+        let Some((r, row)) = lane else { continue };
+        let row = &mut row[..r.width()];
+        let (ly, ldx, ldy, from) = if mirror { (y + dy, -dx, -dy, r.x0 - dx - x0) } else { (y, dx, dy, r.x0 - x0) };
+        for (j, feat) in features.iter().enumerate() {
+            if feat.variance.is_some() {
+                fold_feature_row(row, feat, (ly, ldy, r.x0, r.x1, ldx, j == 0));
+            } else {
+                let sums = &square_sums[j * w + from as usize..][..r.width()];
+                fold_feature_product(row, sums, feat.inv_den[0].row(ly, r.x0, r.x1), j == 0);
             }
         }
     }
