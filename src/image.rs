@@ -55,7 +55,7 @@ impl Plane {
         self.data
     }
 
-    #[inline]
+    #[inline(always)]
     fn index(&self, x: i64, y: i64) -> usize {
         debug_assert!(self.rect.contains(x, y), "({x},{y}) outside {:?}", self.rect);
         (y - self.rect.y0) as usize * self.rect.width() + (x - self.rect.x0) as usize
@@ -75,7 +75,7 @@ impl Plane {
     }
 
     /// Samples of row `y` for columns `[x0, x1)`.
-    #[inline]
+    #[inline(always)]
     pub fn row(&self, y: i64, x0: i64, x1: i64) -> &[f32] {
         let i = self.index(x0, y);
         &self.data[i..i + (x1 - x0) as usize]

@@ -197,6 +197,18 @@ pub fn accumulate_colour_distance_pair(
     }
 }
 
+/// Each row of `rows` cut to its first `n` samples. A plain loop: the
+/// standard `array::map` and `array::from_fn` stay out-of-line calls (each
+/// with a `vzeroupper`) inside the block kernel's tier wrappers.
+#[inline(always)]
+pub fn cut<const N: usize>(rows: [&[f32]; N], n: usize) -> [&[f32]; N] {
+    let mut out = rows;
+    for r in out.iter_mut() {
+        *r = &r[..n];
+    }
+    out
+}
+
 /// [`accumulate_colour_distance_pair`] over three channels at once into
 /// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
 /// same operations as three calls on rows filled with zeros, without the rows'
@@ -213,7 +225,7 @@ pub fn colour_distance_pair_rgb(
 ) {
     let n = fwd.len();
     let mir = &mut mir[..n];
-    let (up, uq, vp, vq) = (up.map(|r| &r[..n]), uq.map(|r| &r[..n]), vp.map(|r| &r[..n]), vq.map(|r| &r[..n]));
+    let (up, uq, vp, vq) = (cut(up, n), cut(uq, n), cut(vp, n), cut(vq, n));
     for i in 0..n {
         let (mut a, mut b) = (0.0f32, 0.0f32);
         for c in 0..3 {
@@ -261,7 +273,7 @@ pub struct FeatureRows<'a, const C: usize> {
 #[inline(always)]
 pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], rows: &FeatureRows<'_, C>) {
     let n = out.len();
-    let (fp, fq) = (rows.fp.map(|r| &r[..n]), rows.fq.map(|r| &r[..n]));
+    let (fp, fq) = (cut(rows.fp, n), cut(rows.fq, n));
     let fold = |o: f32, t: f32| fold_min(if FIRST { 0.0 } else { o }, t);
     match rows.var {
         None => {
@@ -275,7 +287,7 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
             }
         }
         Some((vp, vq)) => {
-            let (vp, vq, inv) = (vp.map(|r| &r[..n]), vq.map(|r| &r[..n]), rows.inv_den.map(|r| &r[..n]));
+            let (vp, vq, inv) = (cut(vp, n), cut(vq, n), cut(rows.inv_den, n));
             for i in 0..n {
                 let mut a = 0.0f32;
                 for c in 0..C {
@@ -318,7 +330,7 @@ pub fn fold_feature_term_any(
 #[inline(always)]
 pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_, C>, fq: ChannelRowsRef<'_, C>) {
     let n = out.len();
-    let (fp, fq) = (fp.map(|r| &r[..n]), fq.map(|r| &r[..n]));
+    let (fp, fq) = (cut(fp, n), cut(fq, n));
     for i in 0..n {
         let mut s = 0.0f32;
         for c in 0..C {

@@ -9,7 +9,7 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, exp2_weight, feature_square_sum,
+    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum,
     feature_square_sum_any, fold_feature_product, fold_feature_term, fold_feature_term_any, log2_distance_scale,
 };
 use super::simd::{self, Tier};
@@ -429,19 +429,15 @@ fn run_step(
     let StepCtx { jobs, features, f, cap, block, s, k2 } = *ctx;
     let dy = sides[0].dy;
     // The step rows (a lane's rows minus its side's shift) a pass walks.
-    let span = |rows: fn(&Side<'_>) -> (i64, i64)| {
-        sides
-            .iter()
-            .filter(|side| !side.lanes.is_empty())
-            .map(|side| (rows(side).0 - side.shift, rows(side).1 - side.shift))
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    };
-    let (Some(w_rows), Some(a_rows)) = (span(|s| s.w_y), span(|s| s.a_y)) else { return };
+    let (mut w_rows, mut a_rows) = ((i64::MAX, i64::MIN), (i64::MAX, i64::MIN));
     // The last step row of a window: the same for both sides.
-    let Some(valid_y1) = sides.iter().find_map(|side| side.lanes.first().map(|l| l.valid.y1 - side.shift)) else {
-        return;
-    };
-    let last_row = |y: i64| (y + f).min(valid_y1 - 1);
+    let mut valid_y1 = None;
+    for side in sides.iter().filter(|side| !side.lanes.is_empty()) {
+        w_rows = (w_rows.0.min(side.w_y.0 - side.shift), w_rows.1.max(side.w_y.1 - side.shift));
+        a_rows = (a_rows.0.min(side.a_y.0 - side.shift), a_rows.1.max(side.a_y.1 - side.shift));
+        valid_y1 = Some(side.lanes[0].valid.y1 - side.shift);
+    }
+    let Some(valid_y1) = valid_y1 else { return };
     let rows = match pairs {
         Some(p) => p[0].u.y0..p[0].u.y1,
         None => sides[0].d_y.0..sides[0].d_y.1,
@@ -484,7 +480,7 @@ fn run_step(
             }
         }
         // 2. Patch distances, weights, and their horizontal sums.
-        while next_w < w_rows.1 && last_row(next_w) <= yd {
+        while next_w < w_rows.1 && (next_w + f).min(valid_y1 - 1) <= yd {
             let y = next_w;
             next_w += 1;
             if !features.is_empty() {
@@ -522,7 +518,7 @@ fn run_step(
                 }
             }
             // 3. Mean weights of every lane of a side, accumulated in one pass.
-            while next_a < a_rows.1 && last_row(next_a) <= y {
+            while next_a < a_rows.1 && (next_a + f).min(valid_y1 - 1) <= y {
                 let ya = next_a;
                 next_a += 1;
                 for (j, job) in jobs.iter().enumerate() {
@@ -541,14 +537,11 @@ fn run_step(
                             let ny = vertical_sums((&buf.h2, &buf.q2), cap, side.w_y.0, yl, lane.valid, f, mw);
                             scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                         }
-                        let rows: [LaneRow<'_>; GROUP_MAX] = std::array::from_fn(|g| match side.lanes.get(g) {
-                            Some(lane) => LaneRow {
-                                w: &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()],
-                                x0: lane.acc.x0,
-                                dx: lane.dx,
-                            },
-                            None => LaneRow { w: &[], x0: 0, dx: 0 },
-                        });
+                        let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
+                        for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
+                            let w = &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()];
+                            *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
+                        }
                         accumulate(
                             &mut num[j],
                             &mut den[j],
@@ -727,6 +720,7 @@ struct LaneBuffers {
 }
 
 /// One lane's row of mean weights, for columns from `x0`.
+#[derive(Clone, Copy)]
 struct LaneRow<'a> {
     w: &'a [f32],
     x0: i64,
@@ -788,7 +782,10 @@ fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]
         *p = *x + *y;
     }
     let pairs: &[f32] = pairs;
-    let lanes: [&[f32]; F] = std::array::from_fn(|k| &pairs[2 * k..2 * k + n]);
+    let mut lanes: [&[f32]; F] = [&[]; F];
+    for (k, lane) in lanes.iter_mut().enumerate() {
+        *lane = &pairs[2 * k..2 * k + n];
+    }
     let last = &src[2 * F..2 * F + n];
     for (i, o) in out.iter_mut().enumerate() {
         let mut acc = lanes[0][i];
@@ -831,11 +828,12 @@ fn vertical_sums(
 #[inline(always)]
 fn pair_window<const T: usize>((ring, pairs): (&[f32], &[f32]), cap: usize, first: usize, out: &mut [f32]) {
     let (st, w) = (ring.len() / cap, out.len());
-    let q: [&[f32]; T] = std::array::from_fn(|j| {
+    let mut q: [&[f32]; T] = [&[]; T];
+    for (j, qj) in q.iter_mut().enumerate() {
         let (src, k) = if j + 1 < T { (pairs, first + 2 * j + 1) } else { (ring, first + 2 * j) };
         let at = (k % cap) * st;
-        &src[at..at + w]
-    });
+        *qj = &src[at..at + w];
+    }
     rows_sum::<T>(q, out)
 }
 
@@ -899,10 +897,10 @@ fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: usize, count
         &ring[slot * stride..slot * stride + w]
     };
     match count {
-        3 => rows_sum::<3>(std::array::from_fn(row), out),
-        5 => rows_sum::<5>(std::array::from_fn(row), out),
-        7 => rows_sum::<7>(std::array::from_fn(row), out),
-        9 => rows_sum::<9>(std::array::from_fn(row), out),
+        3 => rows_sum::<3>(ring_rows(ring, stride, cap, first, w), out),
+        5 => rows_sum::<5>(ring_rows(ring, stride, cap, first, w), out),
+        7 => rows_sum::<7>(ring_rows(ring, stride, cap, first, w), out),
+        9 => rows_sum::<9>(ring_rows(ring, stride, cap, first, w), out),
         _ => {
             out.copy_from_slice(row(0));
             for i in 1..count {
@@ -912,6 +910,17 @@ fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: usize, count
             }
         }
     }
+}
+
+/// Rows `first..first + N` of `ring` (row `k` in slot `k % cap`), `w` samples each.
+#[inline(always)]
+fn ring_rows<const N: usize>(ring: &[f32], stride: usize, cap: usize, first: usize, w: usize) -> [&[f32]; N] {
+    let mut rows: [&[f32]; N] = [&[]; N];
+    for (i, row) in rows.iter_mut().enumerate() {
+        let slot = (first + i) % cap;
+        *row = &ring[slot * stride..slot * stride + w];
+    }
+    rows
 }
 
 /// Accumulate one row `y` of mean weights of every lane of a group (offsets
@@ -974,9 +983,11 @@ fn accumulate_span<const G: usize>(
     span: std::ops::Range<usize>,
 ) {
     let n = (c1 - c0) as usize;
-    let w: [&[f32]; G] = std::array::from_fn(|g| &rows[g].w[(c0 - rows[g].x0) as usize..][..n]);
-    let q =
-        |c: usize| -> [&[f32]; G] { std::array::from_fn(|g| values[c].row(y + dy, c0 + rows[g].dx, c1 + rows[g].dx)) };
+    let mut w: [&[f32]; G] = [&[]; G];
+    for (wg, row) in w.iter_mut().zip(rows) {
+        *wg = &row.w[(c0 - row.x0) as usize..][..n];
+    }
+    let q = |c: usize| lane_values::<G>(values[c], rows, y + dy, c0, c1);
     let d = &mut den[span.clone()];
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
@@ -1003,16 +1014,23 @@ fn accumulate_span<const G: usize>(
     }
 }
 
+/// Row `y` of `plane` over columns `c0..c1` shifted by each lane's `dx`.
+#[inline(always)]
+fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i64, c0: i64, c1: i64) -> [&'a [f32]; G] {
+    let mut q: [&[f32]; G] = [&[]; G];
+    for (qg, row) in q.iter_mut().zip(rows) {
+        *qg = plane.row(y, c0 + row.dx, c1 + row.dx);
+    }
+    q
+}
+
 /// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
 /// (separate `&mut` arguments: the compiler knows they do not alias).
 #[inline(always)]
 fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [q0, q1, q2]: [[&[f32]; G]; 3]) {
     let n = d.len();
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
-    let w: [&[f32]; G] = std::array::from_fn(|g| &w[g][..n]);
-    let q0: [&[f32]; G] = std::array::from_fn(|g| &q0[g][..n]);
-    let q1: [&[f32]; G] = std::array::from_fn(|g| &q1[g][..n]);
-    let q2: [&[f32]; G] = std::array::from_fn(|g| &q2[g][..n]);
+    let (w, q0, q1, q2) = (cut(w, n), cut(q0, n), cut(q1, n), cut(q2, n));
     for i in 0..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
@@ -1029,7 +1047,7 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
 #[inline(always)]
 fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     let n = out.len();
-    let rows: [&[f32]; T] = std::array::from_fn(|k| &rows[k][..n]);
+    let rows = cut(rows, n);
     for (i, o) in out.iter_mut().enumerate() {
         let mut acc = rows[0][i];
         for row in &rows[1..] {
@@ -1087,9 +1105,14 @@ fn guide_rows(
             let (tf_fwd, tf_mir) = tf.split_at_mut(GROUP_MAX);
             let (fwd_row, mir_row) = (in_rows(sides[0].w_y, y), in_rows(sides[1].w_y, y + dy));
             for pair in pairs {
-                let lane = |side: &Side<'_>, g: usize| side.lanes[g].w;
-                let fwd = pair.fwd.filter(|_| fwd_row).map(|g| (lane(&sides[0], g), &mut *tf_fwd[g]));
-                let mir = pair.mir.filter(|_| mir_row).map(|g| (lane(&sides[1], g), &mut *tf_mir[g]));
+                let fwd = match pair.fwd {
+                    Some(g) if fwd_row => Some((sides[0].lanes[g].w, &mut *tf_fwd[g])),
+                    _ => None,
+                };
+                let mir = match pair.mir {
+                    Some(g) if mir_row => Some((sides[1].lanes[g].w, &mut *tf_mir[g])),
+                    _ => None,
+                };
                 pair_feature_row(features, (pair.dx, dy), y, fwd, mir, square_sums);
             }
         }
@@ -1125,11 +1148,22 @@ fn fold_feature_rows<const C: usize>(
     (y, dy, x0, x1, dx, first): (i64, i64, i64, i64, i64, bool),
 ) {
     let last = feat.inv_den.len() - 1;
+    // A `match`, not `Option::map`: the closure would stay an out-of-line call.
+    #[allow(clippy::manual_map)]
     let rows = FeatureRows::<C> {
         fp: channel_rows(&feat.values, y, x0, x1),
         fq: channel_rows(&feat.values, y + dy, x0 + dx, x1 + dx),
-        var: feat.variance.as_ref().map(|v| (channel_rows(v, y, x0, x1), channel_rows(v, y + dy, x0 + dx, x1 + dx))),
-        inv_den: std::array::from_fn(|c| feat.inv_den[c.min(last)].row(y, x0, x1)),
+        var: match &feat.variance {
+            Some(v) => Some((channel_rows(v, y, x0, x1), channel_rows(v, y + dy, x0 + dx, x1 + dx))),
+            None => None,
+        },
+        inv_den: {
+            let mut inv: [&[f32]; C] = [&[]; C];
+            for (c, r) in inv.iter_mut().enumerate() {
+                *r = feat.inv_den[c.min(last)].row(y, x0, x1);
+            }
+            inv
+        },
     };
     if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
 }
@@ -1210,7 +1244,11 @@ fn square_sum_rows<const C: usize>(
 /// Row `y`, columns `x0..x1`, of each of the first `C` planes.
 #[inline(always)]
 fn channel_rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [&[f32]; C] {
-    std::array::from_fn(|c| planes[c].row(y, x0, x1))
+    let mut rows: [&[f32]; C] = [&[]; C];
+    for (row, plane) in rows.iter_mut().zip(planes) {
+        *row = plane.row(y, x0, x1);
+    }
+    rows
 }
 
 /// Row `y`, columns `x0..x1`, of every plane.
