@@ -197,6 +197,46 @@ pub fn accumulate_colour_distance_pair(
     }
 }
 
+/// Samples per chunk of the row loops: one AVX-512 vector, two AVX2 ones.
+///
+/// A row loop written over chunks compiles to whole vectors only: a row of
+/// `n >= CHUNK` samples is covered by the chunks starting at `0, CHUNK, ...`
+/// and a last one ending at `n`, which overlaps its predecessor (see
+/// [`chunk_start`]). For a loop whose output is not one of its inputs, or
+/// whose update is idempotent (a minimum), the overlapped samples get the
+/// same bits twice. The compiler's own vector loops end in a scalar loop of
+/// up to 32 samples, which on rows of a few hundred samples cost about as
+/// much as the vector part.
+pub const CHUNK: usize = 16;
+
+/// One chunk of samples.
+pub type Chunk = [f32; CHUNK];
+
+/// The number of chunks covering a row of `n >= CHUNK` samples.
+#[inline(always)]
+pub fn chunk_count(n: usize) -> usize {
+    n.div_ceil(CHUNK)
+}
+
+/// Where chunk `c` of a row of `n >= CHUNK` samples starts: the last chunk
+/// ends at `n`.
+#[inline(always)]
+pub fn chunk_start(c: usize, n: usize) -> usize {
+    (c * CHUNK).min(n - CHUNK)
+}
+
+/// The chunk of `s` starting at `i`.
+#[inline(always)]
+pub fn chunk(s: &[f32], i: usize) -> &Chunk {
+    s[i..i + CHUNK].try_into().expect("a chunk is CHUNK samples")
+}
+
+/// The chunk of `s` starting at `i`, to write.
+#[inline(always)]
+pub fn chunk_mut(s: &mut [f32], i: usize) -> &mut Chunk {
+    (&mut s[i..i + CHUNK]).try_into().expect("a chunk is CHUNK samples")
+}
+
 /// Each row of `rows` cut to its first `n` samples. A plain loop: the
 /// standard `array::map` and `array::from_fn` stay out-of-line calls (each
 /// with a `vzeroupper`) inside the block kernel's tier wrappers.
@@ -226,18 +266,34 @@ pub fn colour_distance_pair_rgb(
     let n = fwd.len();
     let mir = &mut mir[..n];
     let (up, uq, vp, vq) = (cut(up, n), cut(uq, n), cut(vp, n), cut(vq, n));
-    for i in 0..n {
-        let (mut a, mut b) = (0.0f32, 0.0f32);
-        for c in 0..3 {
-            let d = up[c][i] - uq[c][i];
-            let d2 = d * d;
-            let m = if vq[c][i] < vp[c][i] { vq[c][i] } else { vp[c][i] };
-            let r = recip(k2.mul_add(vp[c][i] + vq[c][i], eps));
-            a = (-alpha).mul_add(vp[c][i] + m, d2).mul_add(r, a);
-            b = (-alpha).mul_add(vq[c][i] + m, d2).mul_add(r, b);
+    // Channel c's terms of both directions, added to `a` and `b`.
+    let step = |(a, b): (f32, f32), up: f32, uq: f32, vp: f32, vq: f32| {
+        let d = up - uq;
+        let d2 = d * d;
+        let m = if vq < vp { vq } else { vp };
+        let r = recip(k2.mul_add(vp + vq, eps));
+        ((-alpha).mul_add(vp + m, d2).mul_add(r, a), (-alpha).mul_add(vq + m, d2).mul_add(r, b))
+    };
+    if n < CHUNK {
+        for i in 0..n {
+            let mut ab = (0.0f32, 0.0f32);
+            for c in 0..3 {
+                ab = step(ab, up[c][i], uq[c][i], vp[c][i], vq[c][i]);
+            }
+            (fwd[i], mir[i]) = ab;
         }
-        fwd[i] = a;
-        mir[i] = b;
+        return;
+    }
+    for ch in 0..chunk_count(n) {
+        let i = chunk_start(ch, n);
+        let (mut a, mut b) = ([0.0f32; CHUNK], [0.0f32; CHUNK]);
+        for c in 0..3 {
+            let (up, uq, vp, vq) = (chunk(up[c], i), chunk(uq[c], i), chunk(vp[c], i), chunk(vq[c], i));
+            for k in 0..CHUNK {
+                (a[k], b[k]) = step((a[k], b[k]), up[k], uq[k], vp[k], vq[k]);
+            }
+        }
+        (*chunk_mut(fwd, i), *chunk_mut(mir, i)) = (a, b);
     }
 }
 

@@ -9,8 +9,9 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    FeatureRows, accumulate_colour_distance_pair, colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum,
-    feature_square_sum_any, fold_feature_product, fold_feature_term, fold_feature_term_any, log2_distance_scale,
+    CHUNK, FeatureRows, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
+    colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_product,
+    fold_feature_term, fold_feature_term_any, log2_distance_scale,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -776,10 +777,22 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
 #[inline(always)]
 fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
     let n = out.len();
-    let (a, b) = (&src[..n + 2 * F - 2], &src[1..n + 2 * F - 1]);
-    let pairs = &mut pairs[..n + 2 * F - 2];
-    for (p, (x, y)) in pairs.iter_mut().zip(a.iter().zip(b)) {
-        *p = *x + *y;
+    let m = n + 2 * F - 2;
+    let (a, b) = (&src[..m], &src[1..m + 1]);
+    let pairs = &mut pairs[..m];
+    if m < CHUNK {
+        for (p, (x, y)) in pairs.iter_mut().zip(a.iter().zip(b)) {
+            *p = *x + *y;
+        }
+    } else {
+        for c in 0..chunk_count(m) {
+            let i = chunk_start(c, m);
+            let (mut x, y) = (*chunk(a, i), chunk(b, i));
+            for k in 0..CHUNK {
+                x[k] += y[k];
+            }
+            *chunk_mut(pairs, i) = x;
+        }
     }
     let pairs: &[f32] = pairs;
     let mut lanes: [&[f32]; F] = [&[]; F];
@@ -787,12 +800,30 @@ fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]
         *lane = &pairs[2 * k..2 * k + n];
     }
     let last = &src[2 * F..2 * F + n];
-    for (i, o) in out.iter_mut().enumerate() {
-        let mut acc = lanes[0][i];
-        for lane in &lanes[1..] {
-            acc += lane[i];
+    if n < CHUNK {
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut acc = lanes[0][i];
+            for lane in &lanes[1..] {
+                acc += lane[i];
+            }
+            *o = acc + last[i];
         }
-        *o = acc + last[i];
+        return;
+    }
+    for c in 0..chunk_count(n) {
+        let i = chunk_start(c, n);
+        let mut acc = *chunk(lanes[0], i);
+        for lane in &lanes[1..] {
+            let l = chunk(lane, i);
+            for k in 0..CHUNK {
+                acc[k] += l[k];
+            }
+        }
+        let l = chunk(last, i);
+        for k in 0..CHUNK {
+            acc[k] += l[k];
+        }
+        *chunk_mut(out, i) = acc;
     }
 }
 
@@ -847,8 +878,22 @@ fn pair_row(ring: &[f32], pairs: &mut [f32], cap: usize, k: usize, w: usize) {
     let st = ring.len() / cap;
     let (prev, cur) = (((k - 1) % cap) * st, (k % cap) * st);
     let out = &mut pairs[cur..cur + w];
-    for (o, (p, c)) in out.iter_mut().zip(ring[prev..prev + w].iter().zip(&ring[cur..cur + w])) {
-        *o = *p + *c;
+    let (a, b) = (&ring[prev..prev + w], &ring[cur..cur + w]);
+    if w < CHUNK {
+        for (o, (p, c)) in out.iter_mut().zip(a.iter().zip(b)) {
+            *o = *p + *c;
+        }
+        return;
+    }
+    for c in 0..chunk_count(w) {
+        let i = chunk_start(c, w);
+        // Computed in a local chunk, stored once: the stores then cannot
+        // reorder with the loads, and the chunk stays one vector.
+        let (mut p, q) = (*chunk(a, i), chunk(b, i));
+        for k in 0..CHUNK {
+            p[k] += q[k];
+        }
+        *chunk_mut(out, i) = p;
     }
 }
 
@@ -1047,13 +1092,27 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
 #[inline(always)]
 fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     let n = out.len();
-    let rows = cut(rows, n);
-    for (i, o) in out.iter_mut().enumerate() {
-        let mut acc = rows[0][i];
-        for row in &rows[1..] {
-            acc += row[i];
+    if n < CHUNK {
+        let rows = cut(rows, n);
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut acc = rows[0][i];
+            for row in &rows[1..] {
+                acc += row[i];
+            }
+            *o = acc;
         }
-        *o = acc;
+        return;
+    }
+    for c in 0..chunk_count(n) {
+        let i = chunk_start(c, n);
+        let mut acc = *chunk(rows[0], i);
+        for row in &rows[1..] {
+            let r = chunk(row, i);
+            for k in 0..CHUNK {
+                acc[k] += r[k];
+            }
+        }
+        *chunk_mut(out, i) = acc;
     }
 }
 
