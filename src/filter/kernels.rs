@@ -331,25 +331,63 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
     let n = out.len();
     let (fp, fq) = (cut(rows.fp, n), cut(rows.fq, n));
     let fold = |o: f32, t: f32| fold_min(if FIRST { 0.0 } else { o }, t);
+    // The fold is idempotent: an overlapping last chunk gives the same bits.
     match rows.var {
         None => {
             let inv = &rows.inv_den[0][..n];
-            for i in 0..n {
-                let mut s = 0.0f32;
-                for c in 0..C {
-                    s = plain_step(s, fp[c][i], fq[c][i]);
+            if n < CHUNK {
+                for i in 0..n {
+                    let mut s = 0.0f32;
+                    for c in 0..C {
+                        s = plain_step(s, fp[c][i], fq[c][i]);
+                    }
+                    out[i] = fold(out[i], s * inv[i]);
                 }
-                out[i] = fold(out[i], s * inv[i]);
+                return;
+            }
+            for ch in 0..chunk_count(n) {
+                let i = chunk_start(ch, n);
+                let mut s = [0.0f32; CHUNK];
+                for c in 0..C {
+                    let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
+                    for k in 0..CHUNK {
+                        s[k] = plain_step(s[k], p[k], q[k]);
+                    }
+                }
+                let (mut o, inv) = (*chunk(out, i), chunk(inv, i));
+                for k in 0..CHUNK {
+                    o[k] = fold(o[k], s[k] * inv[k]);
+                }
+                *chunk_mut(out, i) = o;
             }
         }
         Some((vp, vq)) => {
             let (vp, vq, inv) = (cut(vp, n), cut(vq, n), cut(rows.inv_den, n));
-            for i in 0..n {
-                let mut a = 0.0f32;
-                for c in 0..C {
-                    a = variance_step(a, fp[c][i], fq[c][i], vp[c][i], vq[c][i], inv[c][i]);
+            if n < CHUNK {
+                for i in 0..n {
+                    let mut a = 0.0f32;
+                    for c in 0..C {
+                        a = variance_step(a, fp[c][i], fq[c][i], vp[c][i], vq[c][i], inv[c][i]);
+                    }
+                    out[i] = fold(out[i], a);
                 }
-                out[i] = fold(out[i], a);
+                return;
+            }
+            for ch in 0..chunk_count(n) {
+                let i = chunk_start(ch, n);
+                let mut a = [0.0f32; CHUNK];
+                for c in 0..C {
+                    let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
+                    let (x, y, v) = (chunk(vp[c], i), chunk(vq[c], i), chunk(inv[c], i));
+                    for k in 0..CHUNK {
+                        a[k] = variance_step(a[k], p[k], q[k], x[k], y[k], v[k]);
+                    }
+                }
+                let mut o = *chunk(out, i);
+                for k in 0..CHUNK {
+                    o[k] = fold(o[k], a[k]);
+                }
+                *chunk_mut(out, i) = o;
             }
         }
     }
@@ -387,12 +425,26 @@ pub fn fold_feature_term_any(
 pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_, C>, fq: ChannelRowsRef<'_, C>) {
     let n = out.len();
     let (fp, fq) = (cut(fp, n), cut(fq, n));
-    for i in 0..n {
-        let mut s = 0.0f32;
-        for c in 0..C {
-            s = plain_step(s, fp[c][i], fq[c][i]);
+    if n < CHUNK {
+        for i in 0..n {
+            let mut s = 0.0f32;
+            for c in 0..C {
+                s = plain_step(s, fp[c][i], fq[c][i]);
+            }
+            out[i] = s;
         }
-        out[i] = s;
+        return;
+    }
+    for ch in 0..chunk_count(n) {
+        let i = chunk_start(ch, n);
+        let mut s = [0.0f32; CHUNK];
+        for c in 0..C {
+            let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
+            for k in 0..CHUNK {
+                s[k] = plain_step(s[k], p[k], q[k]);
+            }
+        }
+        *chunk_mut(out, i) = s;
     }
 }
 
@@ -410,14 +462,21 @@ pub fn feature_square_sum_any(out: &mut [f32], fp: &[&[f32]], fq: &[&[f32]]) {
 pub fn fold_feature_product(out: &mut [f32], s: &[f32], inv: &[f32], first: bool) {
     let n = out.len();
     let (s, inv) = (&s[..n], &inv[..n]);
-    if first {
+    if n < CHUNK {
         for i in 0..n {
-            out[i] = fold_min(0.0, s[i] * inv[i]);
+            out[i] = fold_min(if first { 0.0 } else { out[i] }, s[i] * inv[i]);
         }
-    } else {
-        for i in 0..n {
-            out[i] = fold_min(out[i], s[i] * inv[i]);
+        return;
+    }
+    // The fold is idempotent: an overlapping last chunk gives the same bits.
+    for ch in 0..chunk_count(n) {
+        let i = chunk_start(ch, n);
+        let (x, v) = (chunk(s, i), chunk(inv, i));
+        let mut o = if first { [0.0f32; CHUNK] } else { *chunk(out, i) };
+        for k in 0..CHUNK {
+            o[k] = fold_min(o[k], x[k] * v[k]);
         }
+        *chunk_mut(out, i) = o;
     }
 }
 

@@ -239,6 +239,7 @@ fn filter_block_body(
         drow: Aligned::zeroed(pair_w),
         mrow: Aligned::zeroed(pair_w),
         wrow: Aligned::zeroed(mid.width()),
+        weights: Aligned::zeroed(mid.width()),
         pairs: Aligned::zeroed(pair_w),
         tf: if features.is_empty() {
             Vec::new()
@@ -344,7 +345,9 @@ struct Scratch {
     drow: Aligned,
     /// A pair's mirror distance row (discarded for a lane computed alone).
     mrow: Aligned,
+    /// A lane's patch distances (window sums) of a row, and its weights.
     wrow: Aligned,
+    weights: Aligned,
     /// Pair sums of a row (see [`pair_taps_sum`]).
     pairs: Aligned,
     /// The guides' weight argument of each lane's current weight row
@@ -443,7 +446,7 @@ fn run_step(
         Some(p) => p[0].u.y0..p[0].u.y1,
         None => sides[0].d_y.0..sides[0].d_y.1,
     };
-    let Scratch { drow, mrow, wrow, pairs: psum, tf, square_sums } = scratch;
+    let Scratch { drow, mrow, wrow, weights, pairs: psum, tf, square_sums } = scratch;
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
@@ -498,22 +501,19 @@ fn run_step(
                     for (g, lane) in side.lanes.iter().enumerate() {
                         let buf = &mut bufs[lane_buf(j, si, g)];
                         let ww = lane.w.width();
-                        let wr = &mut wrow[..ww];
+                        let (wr, wt) = (&mut wrow[..ww], &mut weights[..ww]);
                         let ny = vertical_sums((&buf.h1, &buf.q1), cap, side.d_y.0, yl, lane.valid, f, wr);
                         // The patch mean's scale (with `kd`) applied inside the weight's loop.
+                        let at = (lane.w.x0, lane.valid, f, ny, kd);
                         if features.is_empty() {
-                            map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |_, t| exp2_weight(t));
+                            weight_row::<false>(wr, wt, &[], at);
                         } else {
-                            // min(w_c, w_f) = 2^min(t_c, t_f): one exp for both.
-                            let tf = &tf[si * GROUP_MAX + g][..ww];
-                            map_scaled(wr, lane.w.x0, lane.valid, f, ny, kd, |i, t| {
-                                exp2_weight(if tf[i] < t { tf[i] } else { t })
-                            });
+                            weight_row::<true>(wr, wt, &tf[si * GROUP_MAX + g][..ww], at);
                         }
                         let k = (yl - side.w_y.0) as usize;
                         let (slot, aw, st) = (k % cap, lane.acc.width(), buf.h2.len() / cap);
                         let h2 = &mut buf.h2[slot * st..slot * st + aw];
-                        window_sums_row(wr, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
+                        window_sums_row(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
                         pair_row(&buf.h2, &mut buf.q2, cap, k, aw);
                     }
                 }
@@ -897,18 +897,41 @@ fn pair_row(ring: &[f32], pairs: &mut [f32], cap: usize, k: usize, w: usize) {
     }
 }
 
-/// `row[i] = map(i, row[i] * k / (nx * ny))`, the window sums of a row turned
-/// into scaled means (as [`scale_by_count`]) and mapped in the same pass.
+/// The weights of a row (columns from `x0`): `dst[i] = 2^t` with
+/// `t = src[i] * k / (nx * ny)`, the window sums turned into the weight's
+/// argument by the patch mean's scale (as [`scale_by_count`]) in the same
+/// pass; with `GUIDED`, `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn map_scaled(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32, map: impl Fn(usize, f32) -> f32) {
-    let (unclipped, clipped) = window_columns(x0, row.len(), clip, f);
+fn weight_row<const GUIDED: bool>(
+    src: &[f32],
+    dst: &mut [f32],
+    tf: &[f32],
+    (x0, clip, f, ny, k): (i64, Rect, i64, f32, f32),
+) {
+    let n = dst.len();
+    let src = &src[..n];
+    let weight = |t: f32, tf: f32| exp2_weight(if GUIDED && tf < t { tf } else { t });
+    let guide = |i: usize| if GUIDED { tf[i] } else { 0.0 };
+    let (unclipped, clipped) = window_columns(x0, n, clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
-    for i in unclipped {
-        row[i] = map(i, row[i] * inner);
+    let (u0, len) = (unclipped.start, unclipped.len());
+    if len < CHUNK {
+        for i in unclipped {
+            dst[i] = weight(src[i] * inner, guide(i));
+        }
+    } else {
+        for c in 0..chunk_count(len) {
+            let i = u0 + chunk_start(c, len);
+            let (s, g) = (chunk(src, i), if GUIDED { *chunk(tf, i) } else { [0.0; CHUNK] });
+            let mut o = [0.0f32; CHUNK];
+            for j in 0..CHUNK {
+                o[j] = weight(s[j] * inner, g[j]);
+            }
+            *chunk_mut(dst, i) = o;
+        }
     }
     for (i, nx) in clipped {
-        row[i] = map(i, row[i] * (k / (nx * ny)));
+        dst[i] = weight(src[i] * (k / (nx * ny)), guide(i));
     }
 }
 
@@ -1076,7 +1099,24 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
     let n = d.len();
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
     let (w, q0, q1, q2) = (cut(w, n), cut(q0, n), cut(q1, n), cut(q2, n));
-    for i in 0..n {
+    // Whole chunks (an update in place: no overlapping last chunk), then
+    // the remaining samples one by one with the same operations.
+    let whole = n / CHUNK * CHUNK;
+    for c in 0..whole / CHUNK {
+        let i = c * CHUNK;
+        let (mut dd, mut a0, mut a1, mut a2) = (*chunk(d, i), *chunk(n0, i), *chunk(n1, i), *chunk(n2, i));
+        for g in 0..G {
+            let (wg, x0, x1, x2) = (chunk(w[g], i), chunk(q0[g], i), chunk(q1[g], i), chunk(q2[g], i));
+            for k in 0..CHUNK {
+                dd[k] += wg[k];
+                a0[k] = wg[k].mul_add(x0[k], a0[k]);
+                a1[k] = wg[k].mul_add(x1[k], a1[k]);
+                a2[k] = wg[k].mul_add(x2[k], a2[k]);
+            }
+        }
+        (*chunk_mut(d, i), *chunk_mut(n0, i), *chunk_mut(n1, i), *chunk_mut(n2, i)) = (dd, a0, a1, a2);
+    }
+    for i in whole..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
             let wg = w[g][i];
