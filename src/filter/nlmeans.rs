@@ -121,8 +121,9 @@ impl ScratchShape {
         let rings = self.jobs.max(1) as u64 * lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
         // Per lane a row of the guides' weight argument; a row of square sums per guide.
         let guides = if self.guides > 0 { lanes * (mid_w + 15) + self.guides as u64 * (mid_w + r) } else { 0 };
-        // The pair's distance, mirror and pair-sum rows, and the weight row.
-        let rows = 3 * (bw + 4 * f + r + 15) + mid_w + 15;
+        // The pair's distance, mirror and pair-sum rows, and a lane's
+        // patch-distance and weight rows.
+        let rows = 3 * (bw + 4 * f + r + 15) + 2 * (mid_w + 15);
         4 * (self.accumulators as u64 * bw * bh + rings + guides + rows)
     }
 }
