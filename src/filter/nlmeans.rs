@@ -754,10 +754,10 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
         let from = (inner_x0 - f - src_x0) as usize;
         let out = &mut dst[(inner_x0 - dst_x0) as usize..][..n];
         match f {
-            1 => pair_taps_sum::<1>(&src[from..from + n + 2], pairs, out),
-            2 => pair_taps_sum::<2>(&src[from..from + n + 4], pairs, out),
-            3 => pair_taps_sum::<3>(&src[from..from + n + 6], pairs, out),
-            4 => pair_taps_sum::<4>(&src[from..from + n + 8], pairs, out),
+            1 => pair_taps_sum::<1, 2>(&src[from..from + n + 2], pairs, out),
+            2 => pair_taps_sum::<2, 3>(&src[from..from + n + 4], pairs, out),
+            3 => pair_taps_sum::<3, 4>(&src[from..from + n + 6], pairs, out),
+            4 => pair_taps_sum::<4, 5>(&src[from..from + n + 8], pairs, out),
             _ => {
                 for (i, o) in out.iter_mut().enumerate() {
                     let w = &src[from + i..=from + i + 2 * f as usize];
@@ -774,9 +774,11 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
 
 /// `out[i]`, the sum of `src[i..i + 2F + 1]`, from the pair sums
 /// `pairs[j] = src[j] + src[j + 1]`: `((pairs[i] + pairs[i + 2]) + ...) + src[i + 2F]`
-/// (`F + 1` adds per output instead of `2F`, the pairs shared by neighbours).
+/// (`F + 1` adds per output instead of `2F`, the pairs shared by neighbours):
+/// the [`rows_sum`] of `T = F + 1` rows, the pair rows and `src` shifted.
 #[inline(always)]
-fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
+fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
+    const { assert!(T == F + 1) };
     let n = out.len();
     let m = n + 2 * F - 2;
     let (a, b) = (&src[..m], &src[1..m + 1]);
@@ -796,36 +798,11 @@ fn pair_taps_sum<const F: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]
         }
     }
     let pairs: &[f32] = pairs;
-    let mut lanes: [&[f32]; F] = [&[]; F];
-    for (k, lane) in lanes.iter_mut().enumerate() {
-        *lane = &pairs[2 * k..2 * k + n];
+    let mut rows: [&[f32]; T] = [&[]; T];
+    for (k, row) in rows.iter_mut().enumerate() {
+        *row = if k < F { &pairs[2 * k..2 * k + n] } else { &src[2 * F..2 * F + n] };
     }
-    let last = &src[2 * F..2 * F + n];
-    if n < CHUNK {
-        for (i, o) in out.iter_mut().enumerate() {
-            let mut acc = lanes[0][i];
-            for lane in &lanes[1..] {
-                acc += lane[i];
-            }
-            *o = acc + last[i];
-        }
-        return;
-    }
-    for c in 0..chunk_count(n) {
-        let i = chunk_start(c, n);
-        let mut acc = *chunk(lanes[0], i);
-        for lane in &lanes[1..] {
-            let l = chunk(lane, i);
-            for k in 0..CHUNK {
-                acc[k] += l[k];
-            }
-        }
-        let l = chunk(last, i);
-        for k in 0..CHUNK {
-            acc[k] += l[k];
-        }
-        *chunk_mut(out, i) = acc;
-    }
+    rows_sum::<T>(rows, out);
 }
 
 /// Window sums of row `y`: the vertical sums of the ring's rows over
