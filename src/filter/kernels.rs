@@ -337,23 +337,13 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
             let inv = &rows.inv_den[0][..n];
             if n < CHUNK {
                 for i in 0..n {
-                    let mut s = 0.0f32;
-                    for c in 0..C {
-                        s = plain_step(s, fp[c][i], fq[c][i]);
-                    }
-                    out[i] = fold(out[i], s * inv[i]);
+                    out[i] = fold(out[i], square_sum_at(&fp, &fq, i) * inv[i]);
                 }
                 return;
             }
             for ch in 0..chunk_count(n) {
                 let i = chunk_start(ch, n);
-                let mut s = [0.0f32; CHUNK];
-                for c in 0..C {
-                    let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
-                    for k in 0..CHUNK {
-                        s[k] = plain_step(s[k], p[k], q[k]);
-                    }
-                }
+                let s = square_sum_chunk(&fp, &fq, i);
                 let (mut o, inv) = (*chunk(out, i), chunk(inv, i));
                 for k in 0..CHUNK {
                     o[k] = fold(o[k], s[k] * inv[k]);
@@ -426,26 +416,38 @@ pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_
     let n = out.len();
     let (fp, fq) = (cut(fp, n), cut(fq, n));
     if n < CHUNK {
-        for i in 0..n {
-            let mut s = 0.0f32;
-            for c in 0..C {
-                s = plain_step(s, fp[c][i], fq[c][i]);
-            }
-            out[i] = s;
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = square_sum_at(&fp, &fq, i);
         }
         return;
     }
     for ch in 0..chunk_count(n) {
         let i = chunk_start(ch, n);
-        let mut s = [0.0f32; CHUNK];
-        for c in 0..C {
-            let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
-            for k in 0..CHUNK {
-                s[k] = plain_step(s[k], p[k], q[k]);
-            }
-        }
-        *chunk_mut(out, i) = s;
+        *chunk_mut(out, i) = square_sum_chunk(&fp, &fq, i);
     }
+}
+
+/// Sample `i` of the square sum `((0 + d_0^2) + d_1^2) + ...`, `d_c = fp_c - fq_c`.
+#[inline(always)]
+fn square_sum_at<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> f32 {
+    let mut s = 0.0f32;
+    for c in 0..C {
+        s = plain_step(s, fp[c][i], fq[c][i]);
+    }
+    s
+}
+
+/// [`square_sum_at`] for the chunk starting at `i`.
+#[inline(always)]
+fn square_sum_chunk<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> Chunk {
+    let mut s = [0.0f32; CHUNK];
+    for c in 0..C {
+        let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
+        for k in 0..CHUNK {
+            s[k] = plain_step(s[k], p[k], q[k]);
+        }
+    }
+    s
 }
 
 /// [`feature_square_sum`] for any number of channels.
