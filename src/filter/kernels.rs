@@ -225,16 +225,32 @@ pub fn chunk_start(c: usize, n: usize) -> usize {
     (c * CHUNK).min(n - CHUNK)
 }
 
-/// The chunk of `s` starting at `i`.
+/// The chunk of `s` starting at `i`, which must be at most `s.len() - CHUNK`
+/// (debug builds check it; release builds clamp `i` to it).
+///
+/// The clamp keeps this sound without a bounds check per chunk: in the
+/// chunk loops `i` is [`chunk_start`] of a row cut to `s.len()` samples, and
+/// the compiler folds the clamp into the one `chunk_start` already applies.
+/// What is left per call is the test `s.len() >= CHUNK`, the same for every
+/// chunk of a row.
 #[inline(always)]
 pub fn chunk(s: &[f32], i: usize) -> &Chunk {
-    s[i..i + CHUNK].try_into().expect("a chunk is CHUNK samples")
+    debug_assert!(i + CHUNK <= s.len());
+    assert!(s.len() >= CHUNK, "a chunk is CHUNK samples");
+    let i = i.min(s.len() - CHUNK);
+    // SAFETY: `i + CHUNK <= s.len()`, and `Chunk` is `[f32; CHUNK]`, whose
+    // alignment is that of `f32`.
+    unsafe { &*s.as_ptr().add(i).cast::<Chunk>() }
 }
 
-/// The chunk of `s` starting at `i`, to write.
+/// The chunk of `s` starting at `i`, to write (as [`chunk`]).
 #[inline(always)]
 pub fn chunk_mut(s: &mut [f32], i: usize) -> &mut Chunk {
-    (&mut s[i..i + CHUNK]).try_into().expect("a chunk is CHUNK samples")
+    debug_assert!(i + CHUNK <= s.len());
+    assert!(s.len() >= CHUNK, "a chunk is CHUNK samples");
+    let i = i.min(s.len() - CHUNK);
+    // SAFETY: as in `chunk`; `s` is borrowed mutably for the chunk's lifetime.
+    unsafe { &mut *s.as_mut_ptr().add(i).cast::<Chunk>() }
 }
 
 /// Each row of `rows` cut to its first `n` samples. A plain loop: the
@@ -457,26 +473,53 @@ pub fn feature_square_sum_any(out: &mut [f32], fp: &[&[f32]], fq: &[&[f32]]) {
     }
 }
 
-/// Fold `t = s * inv` into `out` by the NaN-safe minimum of
-/// [`fold_feature_term`] (from 0 when `first`): the same bits as
-/// [`fold_feature_term`] without variance, given `s` from [`feature_square_sum`].
+/// The most guides [`fold_feature_products`] folds in one pass.
+pub const PRODUCTS_MAX: usize = 4;
+
+/// Fold `t_g = s_g * inv_g` of every guide `g` (in order, 1 to
+/// [`PRODUCTS_MAX`]) into `out` by the NaN-safe minimum of
+/// [`fold_feature_term`] (from 0 when `first`), in one pass: the same bits
+/// as [`fold_feature_term`] without variance for each guide in turn, given
+/// each `s_g` from [`feature_square_sum`].
 #[inline(always)]
-pub fn fold_feature_product(out: &mut [f32], s: &[f32], inv: &[f32], first: bool) {
+pub fn fold_feature_products(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
+    assert_eq!(s.len(), inv.len(), "each guide's square sums have their factors");
+    match s.len() {
+        1 => fold_products::<1>(out, s, inv, first),
+        2 => fold_products::<2>(out, s, inv, first),
+        3 => fold_products::<3>(out, s, inv, first),
+        4 => fold_products::<4>(out, s, inv, first),
+        k => panic!("{k} guides in one pass (1 to PRODUCTS_MAX)"),
+    }
+}
+
+/// [`fold_feature_products`] for `K` guides.
+#[inline(always)]
+fn fold_products<const K: usize>(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
     let n = out.len();
-    let (s, inv) = (&s[..n], &inv[..n]);
+    let (mut sr, mut ir): ([&[f32]; K], [&[f32]; K]) = ([&[]; K], [&[]; K]);
+    for g in 0..K {
+        (sr[g], ir[g]) = (&s[g][..n], &inv[g][..n]);
+    }
     if n < CHUNK {
         for i in 0..n {
-            out[i] = fold_min(if first { 0.0 } else { out[i] }, s[i] * inv[i]);
+            let mut o = if first { 0.0 } else { out[i] };
+            for g in 0..K {
+                o = fold_min(o, sr[g][i] * ir[g][i]);
+            }
+            out[i] = o;
         }
         return;
     }
     // The fold is idempotent: an overlapping last chunk gives the same bits.
     for ch in 0..chunk_count(n) {
         let i = chunk_start(ch, n);
-        let (x, v) = (chunk(s, i), chunk(inv, i));
         let mut o = if first { [0.0f32; CHUNK] } else { *chunk(out, i) };
-        for k in 0..CHUNK {
-            o[k] = fold_min(o[k], x[k] * v[k]);
+        for g in 0..K {
+            let (x, v) = (chunk(sr[g], i), chunk(ir[g], i));
+            for j in 0..CHUNK {
+                o[j] = fold_min(o[j], x[j] * v[j]);
+            }
         }
         *chunk_mut(out, i) = o;
     }
@@ -599,6 +642,45 @@ mod tests {
         check::<2>();
         check::<3>();
         check::<4>();
+    }
+
+    /// One pass over 1 to 4 guides' products gives the bits of one
+    /// [`fold_feature_term`] per guide in turn (no variance, square sums
+    /// from [`feature_square_sum`]), on rows shorter and longer than a chunk.
+    #[test]
+    fn one_pass_products_match_a_fold_per_guide() {
+        for n in [5, 37] {
+            let row = |seed: usize| -> Vec<f32> {
+                (0..n).map(|i| (((i + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect()
+            };
+            let guides: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..4)
+                .map(|g| (row(3 * g), row(3 * g + 1), row(3 * g + 2).iter().map(|v| -v.abs()).collect()))
+                .collect();
+            let prior: Vec<f32> = (0..n).map(|i| -((i % 5) as f32) * 0.3).collect();
+            for k in 1..=PRODUCTS_MAX {
+                for first in [true, false] {
+                    let mut want = prior.clone();
+                    let mut sums = Vec::new();
+                    for (g, (p, q, inv)) in guides[..k].iter().enumerate() {
+                        let mut s = vec![0.0; n];
+                        feature_square_sum::<1>(&mut s, [p], [q]);
+                        let rows = FeatureRows::<1> { fp: [p], fq: [q], var: None, inv_den: [inv] };
+                        if first && g == 0 {
+                            fold_feature_term::<1, true>(&mut want, &rows);
+                        } else {
+                            fold_feature_term::<1, false>(&mut want, &rows);
+                        }
+                        sums.push(s);
+                    }
+                    let mut got = prior.clone();
+                    let s: Vec<&[f32]> = sums.iter().map(|s| &s[..]).collect();
+                    let inv: Vec<&[f32]> = guides[..k].iter().map(|g| &g.2[..]).collect();
+                    fold_feature_products(&mut got, &s, &inv, first);
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "n={n} k={k} first={first}");
+                }
+            }
+        }
     }
 
     #[test]

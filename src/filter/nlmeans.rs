@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    CHUNK, FeatureRows, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
-    colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_product,
+    CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
+    colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
     fold_feature_term, fold_feature_term_any, log2_distance_scale,
 };
 use super::simd::{self, Tier};
@@ -115,10 +115,10 @@ impl ScratchShape {
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
         let mid_w = bw + 2 * f;
         let lanes = 2 * GROUP_MAX as u64;
-        // Per job and lane: the rings `h` and their pair sums `q` of both
-        // boxes, the mean-weight row, each with up to 15 samples of alignment.
+        // Per job and lane: the rings `h` of both boxes and the mean-weight
+        // row, each with up to 15 samples of alignment.
         let ring_rows = stride(mid_w as usize) as u64 + stride(bw as usize) as u64;
-        let rings = self.jobs.max(1) as u64 * lanes * (2 * (2 * f + 1) * ring_rows + bw + 5 * 15);
+        let rings = self.jobs.max(1) as u64 * lanes * ((2 * f + 1) * ring_rows + bw + 3 * 15);
         // Per lane a row of the guides' weight argument; a row of square sums per guide.
         let guides = if self.guides > 0 { lanes * (mid_w + 15) + self.guides as u64 * (mid_w + r) } else { 0 };
         // The pair's distance, mirror and pair-sum rows, and a lane's
@@ -199,8 +199,9 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 /// the window clipped to the offset's valid rectangle (a function of the
 /// frame): a whole window adds the pair sums of samples `(a, a + 1),
 /// (a + 2, a + 3), ...` then its last sample, horizontally
-/// ([`pair_taps_sum`]) and vertically (the pair sums of rows kept in a second
-/// ring, see [`pair_window`]); a clipped window adds its samples in
+/// ([`pair_taps_sum`], the pair sums stored in a row) and vertically (the
+/// pair sums of ring rows formed in registers, see [`pairs_sum`]); a clipped
+/// window adds its samples in
 /// increasing coordinate. The same operations for a pixel whichever block,
 /// tile or lane computes it.
 #[inline(always)]
@@ -229,8 +230,6 @@ fn filter_block_body(
         .map(|_| LaneBuffers {
             h1: Aligned::zeroed(stride(mid.width()) * cap),
             h2: Aligned::zeroed(stride(block.width()) * cap),
-            q1: Aligned::zeroed(stride(mid.width()) * cap),
-            q2: Aligned::zeroed(stride(block.width()) * cap),
             mean_w: Aligned::zeroed(block.width()),
         })
         .collect();
@@ -503,7 +502,7 @@ fn run_step(
                         let buf = &mut bufs[lane_buf(j, si, g)];
                         let ww = lane.w.width();
                         let (wr, wt) = (&mut wrow[..ww], &mut weights[..ww]);
-                        let ny = vertical_sums((&buf.h1, &buf.q1), cap, side.d_y.0, yl, lane.valid, f, wr);
+                        let ny = vertical_sums(&buf.h1, cap, side.d_y.0, yl, lane.valid, f, wr);
                         // The patch mean's scale (with `kd`) applied inside the weight's loop.
                         let at = (lane.w.x0, lane.valid, f, ny, kd);
                         if features.is_empty() {
@@ -515,7 +514,6 @@ fn run_step(
                         let (slot, aw, st) = (k % cap, lane.acc.width(), buf.h2.len() / cap);
                         let h2 = &mut buf.h2[slot * st..slot * st + aw];
                         window_sums_row(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
-                        pair_row(&buf.h2, &mut buf.q2, cap, k, aw);
                     }
                 }
             }
@@ -536,7 +534,7 @@ fn run_step(
                             // and denominator share the factor, and it is exactly 1
                             // where the window is not clipped (no multiply there).
                             let mw = &mut buf.mean_w[..aw];
-                            let ny = vertical_sums((&buf.h2, &buf.q2), cap, side.w_y.0, yl, lane.valid, f, mw);
+                            let ny = vertical_sums(&buf.h2, cap, side.w_y.0, yl, lane.valid, f, mw);
                             scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                         }
                         let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
@@ -620,7 +618,6 @@ fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i
     let (slot, ww) = (ri as usize % cap, lane.w.width());
     let st = buf.h1.len() / cap;
     window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww], pairs);
-    pair_row(&buf.h1, &mut buf.q1, cap, ri as usize, ww);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -715,9 +712,6 @@ impl std::ops::DerefMut for Aligned {
 struct LaneBuffers {
     h1: Aligned,
     h2: Aligned,
-    /// Pair sums of consecutive ring rows, `q[k] = h[k - 1] + h[k]` (see [`pair_row`]).
-    q1: Aligned,
-    q2: Aligned,
     mean_w: Aligned,
 }
 
@@ -810,69 +804,17 @@ fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32],
 /// returns the window's height.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn vertical_sums(
-    (ring, pairs): (&[f32], &[f32]),
-    cap: usize,
-    ring_y0: i64,
-    y: i64,
-    clip: Rect,
-    f: i64,
-    out: &mut [f32],
-) -> f32 {
+fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
     let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
     let (first, count, st) = ((a - ring_y0) as usize, (b - a + 1) as usize, ring.len() / cap);
     match (f, count) {
-        (1, 3) => pair_window::<2>((ring, pairs), cap, first, out),
-        (2, 5) => pair_window::<3>((ring, pairs), cap, first, out),
-        (3, 7) => pair_window::<4>((ring, pairs), cap, first, out),
-        (4, 9) => pair_window::<5>((ring, pairs), cap, first, out),
+        (1, 3) => pairs_sum::<2, 3>(ring_rows(ring, st, cap, first, out.len()), out),
+        (2, 5) => pairs_sum::<3, 5>(ring_rows(ring, st, cap, first, out.len()), out),
+        (3, 7) => pairs_sum::<4, 7>(ring_rows(ring, st, cap, first, out.len()), out),
+        (4, 9) => pairs_sum::<5, 9>(ring_rows(ring, st, cap, first, out.len()), out),
         _ => ring_column_sums(ring, st, cap, first, count, out),
     }
     count as f32
-}
-
-/// The sum of a whole window of `2T - 1` ring rows from `first`, from the
-/// pair sums: `((pairs[first + 1] + pairs[first + 3]) + ...) + ring[first + 2T - 2]`
-/// (`T - 1` adds per sample instead of `2T - 2`, and about half the loads).
-#[inline(always)]
-fn pair_window<const T: usize>((ring, pairs): (&[f32], &[f32]), cap: usize, first: usize, out: &mut [f32]) {
-    let (st, w) = (ring.len() / cap, out.len());
-    let mut q: [&[f32]; T] = [&[]; T];
-    for (j, qj) in q.iter_mut().enumerate() {
-        let (src, k) = if j + 1 < T { (pairs, first + 2 * j + 1) } else { (ring, first + 2 * j) };
-        let at = (k % cap) * st;
-        *qj = &src[at..at + w];
-    }
-    rows_sum::<T>(q, out)
-}
-
-/// After ring row `k` (`k >= 1`) was written: `pairs[k] = ring[k - 1] + ring[k]`
-/// over the first `w` columns.
-#[inline(always)]
-fn pair_row(ring: &[f32], pairs: &mut [f32], cap: usize, k: usize, w: usize) {
-    if k == 0 {
-        return;
-    }
-    let st = ring.len() / cap;
-    let (prev, cur) = (((k - 1) % cap) * st, (k % cap) * st);
-    let out = &mut pairs[cur..cur + w];
-    let (a, b) = (&ring[prev..prev + w], &ring[cur..cur + w]);
-    if w < CHUNK {
-        for (o, (p, c)) in out.iter_mut().zip(a.iter().zip(b)) {
-            *o = *p + *c;
-        }
-        return;
-    }
-    for c in 0..chunk_count(w) {
-        let i = chunk_start(c, w);
-        // Computed in a local chunk, stored once: the stores then cannot
-        // reorder with the loads, and the chunk stays one vector.
-        let (mut p, q) = (*chunk(a, i), chunk(b, i));
-        for k in 0..CHUNK {
-            p[k] += q[k];
-        }
-        *chunk_mut(out, i) = p;
-    }
 }
 
 /// The weights of a row (columns from `x0`): `dst[i] = 2^t` with
@@ -1107,6 +1049,46 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
     }
 }
 
+/// The sum of a whole window of `N = 2T - 1` rows from the pairs of
+/// consecutive rows, `(((r0 + r1) + (r2 + r3)) + ...) + r[N - 1]`: the
+/// expression of [`pair_taps_sum`] across rows, with each pair formed in
+/// registers (`T - 1` more adds per sample than stored pair rows would
+/// take, but no second ring, no pass writing it and half the ring memory).
+#[inline(always)]
+fn pairs_sum<const T: usize, const N: usize>(rows: [&[f32]; N], out: &mut [f32]) {
+    const { assert!(N == 2 * T - 1) };
+    let n = out.len();
+    let rows = cut(rows, n);
+    if n < CHUNK {
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut acc = rows[0][i] + rows[1][i];
+            for j in 1..T - 1 {
+                acc += rows[2 * j][i] + rows[2 * j + 1][i];
+            }
+            *o = acc + rows[N - 1][i];
+        }
+        return;
+    }
+    for c in 0..chunk_count(n) {
+        let i = chunk_start(c, n);
+        let (mut acc, b) = (*chunk(rows[0], i), chunk(rows[1], i));
+        for k in 0..CHUNK {
+            acc[k] += b[k];
+        }
+        for j in 1..T - 1 {
+            let (x, y) = (chunk(rows[2 * j], i), chunk(rows[2 * j + 1], i));
+            for k in 0..CHUNK {
+                acc[k] += x[k] + y[k];
+            }
+        }
+        let z = chunk(rows[N - 1], i);
+        for k in 0..CHUNK {
+            acc[k] += z[k];
+        }
+        *chunk_mut(out, i) = acc;
+    }
+}
+
 #[inline(always)]
 fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     let n = out.len();
@@ -1287,18 +1269,33 @@ fn pair_feature_row(
             }
         }
     }
-    // Each lane: its own row, columns and offset.
+    // Each lane: its own row, columns and offset. The guides with variance
+    // first, then the products of the others in one pass per (at most)
+    // `PRODUCTS_MAX` guides: the minimum is exact, so only the sign of a
+    // zero can depend on the order, and the weight `2^min(t_c, t_f)` is the
+    // same for either sign.
     for (lane, mirror) in [(fwd, false), (mir, true)] {
         let Some((r, row)) = lane else { continue };
         let row = &mut row[..r.width()];
         let (ly, ldx, ldy, from) = if mirror { (y + dy, -dx, -dy, r.x0 - dx - x0) } else { (y, dx, dy, r.x0 - x0) };
-        for (j, feat) in features.iter().enumerate() {
-            if feat.variance.is_some() {
-                fold_feature_row(row, feat, (ly, ldy, r.x0, r.x1, ldx, j == 0));
-            } else {
-                let sums = &square_sums[j * w + from as usize..][..r.width()];
-                fold_feature_product(row, sums, feat.inv_den[0].row(ly, r.x0, r.x1), j == 0);
+        let mut first = true;
+        for feat in features.iter().filter(|f| f.variance.is_some()) {
+            fold_feature_row(row, feat, (ly, ldy, r.x0, r.x1, ldx, first));
+            first = false;
+        }
+        let (mut sums, mut invs) = ([&[][..]; PRODUCTS_MAX], [&[][..]; PRODUCTS_MAX]);
+        let mut k = 0;
+        for (j, feat) in features.iter().enumerate().filter(|(_, f)| f.variance.is_none()) {
+            sums[k] = &square_sums[j * w + from as usize..][..r.width()];
+            invs[k] = feat.inv_den[0].row(ly, r.x0, r.x1);
+            k += 1;
+            if k == PRODUCTS_MAX {
+                fold_feature_products(row, &sums, &invs, first);
+                (k, first) = (0, false);
             }
+        }
+        if k > 0 {
+            fold_feature_products(row, &sums[..k], &invs[..k], first);
         }
     }
 }
