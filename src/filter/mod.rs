@@ -7,6 +7,7 @@
 //! result is the same bit for bit because every stage is defined on frame
 //! coordinates (see `docs/algorithm.md`).
 
+mod column_sums;
 pub mod features;
 pub mod kernels;
 pub mod nlmeans;

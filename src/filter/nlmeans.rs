@@ -8,6 +8,7 @@
 
 use rayon::prelude::*;
 
+use super::column_sums::ColumnBox;
 use super::kernels::{
     CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
     colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
@@ -115,10 +116,12 @@ impl ScratchShape {
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
         let mid_w = bw + 2 * f;
         let lanes = 2 * GROUP_MAX as u64;
-        // Per job and lane: the rings `h` of both boxes and the mean-weight
-        // row, each with up to 15 samples of alignment.
-        let ring_rows = stride(mid_w as usize) as u64 + stride(bw as usize) as u64;
-        let rings = self.jobs.max(1) as u64 * lanes * ((2 * f + 1) * ring_rows + bw + 3 * 15);
+        // Per job and lane: both boxes (rows, suffixes and prefix, see
+        // [`ColumnBox`]) and the mean-weight row, each with up to 15 samples
+        // of alignment.
+        let cap = (2 * f + 1) as usize;
+        let boxes = ColumnBox::samples(mid_w as usize, cap) + ColumnBox::samples(bw as usize, cap);
+        let rings = self.jobs.max(1) as u64 * lanes * (boxes + bw + 7 * 15);
         // Per lane a row of the guides' weight argument; a row of square sums per guide.
         let guides = if self.guides > 0 { lanes * (mid_w + 15) + self.guides as u64 * (mid_w + r) } else { 0 };
         // The pair's distance, mirror and pair-sum rows, and a lane's
@@ -182,28 +185,25 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 /// interleaved row by row so that no block-sized intermediate exists:
 ///
 /// 1. per row of `d_rect`: the per-pixel distance (summed over channels) and
-///    its horizontal window sums into the ring `h1` (columns of `w_rect`);
+///    its horizontal window sums into the box `h1` (columns of `w_rect`);
 /// 2. per row of `w_rect`, as soon as its window of `h1` rows is complete: the
-///    vertical sum, scaled by `-log2(e) / (channels count)` inside the
-///    weight's loop (`t`, then `2^min(t, t_f)`), then its horizontal window
-///    sums into the ring `h2` (columns of `acc_rect`);
+///    vertical sum (one or two rows added inside the weight's loop), scaled
+///    by `-log2(e) / (channels count)` (`t`, then `2^min(t, t_f)`), then its
+///    horizontal window sums into the box `h2` (columns of `acc_rect`);
 /// 3. per row of `acc_rect`, as soon as its window of `h2` rows is complete:
 ///    the vertical sum times `(2f + 1)^2 / count` (exactly 1, so skipped,
 ///    away from the borders), and one fused pass accumulating every lane
 ///    into the numerators and the denominator.
 ///
-/// A vertical window never reaches more than `2f` rows back, so each ring
-/// holds `2f + 1` rows.
-///
 /// Every window sum is one fixed expression of the window's samples, over
 /// the window clipped to the offset's valid rectangle (a function of the
-/// frame): a whole window adds the pair sums of samples `(a, a + 1),
-/// (a + 2, a + 3), ...` then its last sample, horizontally
-/// ([`pair_taps_sum`], the pair sums stored in a row) and vertically (the
-/// pair sums of ring rows formed in registers, see [`pairs_sum`]); a clipped
-/// window adds its samples in
-/// increasing coordinate. The same operations for a pixel whichever block,
-/// tile or lane computes it.
+/// frame). Horizontally, a whole window adds the pair sums of samples
+/// `(a, a + 1), (a + 2, a + 3), ...` then its last sample ([`pair_taps_sum`],
+/// the pair sums stored in a row). Vertically, a whole window is the
+/// suffix and prefix sums of the blocks of `2f + 1` frame rows it spans
+/// ([`ColumnBox`]). A clipped window adds its samples in increasing
+/// coordinate. The same operations for a pixel whichever block, tile or
+/// lane computes it.
 #[inline(always)]
 fn filter_block_body(
     jobs: &[Job<'_>],
@@ -222,14 +222,14 @@ fn filter_block_body(
 
     let outer = block.expand(2 * s.patch_radius);
     let mid = block.expand(s.patch_radius);
-    // Ring buffers of the last 2f + 1 rows of horizontal sums: a vertical
-    // window never reaches further back.
+    // Window height: the boxes keep the last 2f + 1 rows of horizontal sums
+    // (a vertical window never reaches further back) and their block sums.
     let cap = 2 * s.patch_radius + 1;
     // Every job's forward and mirror lanes (see [`lane_buf`]).
     let mut lanes: Vec<LaneBuffers> = (0..jobs.len() * 2 * GROUP_MAX)
         .map(|_| LaneBuffers {
-            h1: Aligned::zeroed(stride(mid.width()) * cap),
-            h2: Aligned::zeroed(stride(block.width()) * cap),
+            h1: ColumnBox::new(mid.width(), cap),
+            h2: ColumnBox::new(block.width(), cap),
             mean_w: Aligned::zeroed(block.width()),
         })
         .collect();
@@ -253,7 +253,7 @@ fn filter_block_body(
         Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
     };
 
-    let ctx = StepCtx { jobs, features, f, cap, block, s, k2 };
+    let ctx = StepCtx { jobs, features, f, block, s, k2 };
     for step in offset_schedule(r) {
         let dy = step.dy;
         if !step.paired {
@@ -333,7 +333,6 @@ struct StepCtx<'a, 'j> {
     jobs: &'a [Job<'j>],
     features: &'a [GuideFeature],
     f: i64,
-    cap: usize,
     block: Rect,
     s: &'a NlmSettings,
     k2: f32,
@@ -430,7 +429,7 @@ fn run_step(
     bufs: &mut [LaneBuffers],
     scratch: &mut Scratch,
 ) {
-    let StepCtx { jobs, features, f, cap, block, s, k2 } = *ctx;
+    let StepCtx { jobs, features, f, block, s, k2 } = *ctx;
     let dy = sides[0].dy;
     // The step rows (a lane's rows minus its side's shift) a pass walks.
     let (mut w_rows, mut a_rows) = ((i64::MAX, i64::MIN), (i64::MAX, i64::MIN));
@@ -460,7 +459,7 @@ fn run_step(
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
                         distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
                         let buf = &mut bufs[lane_buf(j, 0, g)];
-                        push_h1(lane, buf, d, d_rect.x0, yd - side.d_y.0, f, cap, psum);
+                        push_h1(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
                     }
                 }
                 Some(pairs) => {
@@ -477,7 +476,7 @@ fn run_step(
                             let lane = &side.lanes[g];
                             let from = (lane.d.x0 - x0) as usize;
                             let row = &row[from..from + lane.d.width()];
-                            push_h1(lane, &mut bufs[lane_buf(j, si, g)], row, lane.d.x0, yl - side.d_y.0, f, cap, psum);
+                            push_h1(lane, &mut bufs[lane_buf(j, si, g)], row, lane.d.x0, (yl, side.d_y.0), f, psum);
                         }
                     }
                 }
@@ -502,18 +501,21 @@ fn run_step(
                         let buf = &mut bufs[lane_buf(j, si, g)];
                         let ww = lane.w.width();
                         let (wr, wt) = (&mut wrow[..ww], &mut weights[..ww]);
-                        let ny = vertical_sums(&buf.h1, cap, side.d_y.0, yl, lane.valid, f, wr);
+                        // The window sums as one or two rows, added in the weight's loop.
+                        let (ny, head, tail) = buf.h1.window(side.d_y.0, yl, lane.valid, f, wr);
                         // The patch mean's scale (with `kd`) applied inside the weight's loop.
                         let at = (lane.w.x0, lane.valid, f, ny, kd);
-                        if features.is_empty() {
-                            weight_row::<false>(wr, wt, &[], at);
-                        } else {
-                            weight_row::<true>(wr, wt, &tf[si * GROUP_MAX + g][..ww], at);
+                        let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
+                        match (features.is_empty(), tail) {
+                            (true, None) => weight_row::<false, false>([head, &[]], wt, guide, at),
+                            (true, Some(t)) => weight_row::<false, true>([head, t], wt, guide, at),
+                            (false, None) => weight_row::<true, false>([head, &[]], wt, guide, at),
+                            (false, Some(t)) => weight_row::<true, true>([head, t], wt, guide, at),
                         }
-                        let k = (yl - side.w_y.0) as usize;
-                        let (slot, aw, st) = (k % cap, lane.acc.width(), buf.h2.len() / cap);
-                        let h2 = &mut buf.h2[slot * st..slot * st + aw];
+                        let aw = lane.acc.width();
+                        let h2 = buf.h2.row_mut(yl, side.w_y.0, aw);
                         window_sums_row(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
+                        buf.h2.pushed(yl, side.w_y.0, aw);
                     }
                 }
             }
@@ -534,7 +536,7 @@ fn run_step(
                             // and denominator share the factor, and it is exactly 1
                             // where the window is not clipped (no multiply there).
                             let mw = &mut buf.mean_w[..aw];
-                            let ny = vertical_sums(&buf.h2, cap, side.w_y.0, yl, lane.valid, f, mw);
+                            let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
                             scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                         }
                         let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
@@ -610,14 +612,14 @@ fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
     p.row(y, x.0 + dx, x.1 + dx)
 }
 
-/// Push a lane's distance row `d` (frame row `d_y0 + ri`, columns from `x0`)
-/// as its horizontal window sums into the lane's ring `h1`.
+/// Push a lane's distance row `d` (frame row `y`, columns from `x0`; `y0`
+/// the lane's first row of the step) as its horizontal window sums into
+/// the lane's box `h1`.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, ri: i64, f: i64, cap: usize, pairs: &mut [f32]) {
-    let (slot, ww) = (ri as usize % cap, lane.w.width());
-    let st = buf.h1.len() / cap;
-    window_sums_row(d, x0, lane.valid, f, lane.w.x0, &mut buf.h1[slot * st..slot * st + ww], pairs);
+fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, (y, y0): (i64, i64), f: i64, pairs: &mut [f32]) {
+    let ww = lane.w.width();
+    window_sums_row(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
+    buf.h1.pushed(y, y0, ww);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -675,20 +677,20 @@ impl Lane {
 
 /// Ring slots `stride(width)` samples apart start on a cache line (with
 /// [`Aligned`] storage): whole-vector loads and stores never straddle two.
-fn stride(width: usize) -> usize {
+pub(super) fn stride(width: usize) -> usize {
     width.next_multiple_of(16)
 }
 
 /// A zeroed `f32` buffer whose first sample starts a 64-byte cache line (an
 /// AVX-512 vector), so that rows [`stride`] apart each start a line.
-struct Aligned {
+pub(super) struct Aligned {
     data: Vec<f32>,
     off: usize,
     len: usize,
 }
 
 impl Aligned {
-    fn zeroed(len: usize) -> Aligned {
+    pub(super) fn zeroed(len: usize) -> Aligned {
         let data = vec![0.0f32; len + 15];
         let off = data.as_ptr().align_offset(64);
         Aligned { off: if off < 16 { off } else { 0 }, data, len }
@@ -710,8 +712,8 @@ impl std::ops::DerefMut for Aligned {
 
 /// The working rows of one lane.
 struct LaneBuffers {
-    h1: Aligned,
-    h2: Aligned,
+    h1: ColumnBox,
+    h2: ColumnBox,
     mean_w: Aligned,
 }
 
@@ -799,37 +801,22 @@ fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32],
     rows_sum::<T>(rows, out);
 }
 
-/// Window sums of row `y`: the vertical sums of the ring's rows over
-/// `[y - f, y + f] ∩ clip` (row `k` of the ring is frame row `ring_y0 + k`);
-/// returns the window's height.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn vertical_sums(ring: &[f32], cap: usize, ring_y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
-    let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
-    let (first, count, st) = ((a - ring_y0) as usize, (b - a + 1) as usize, ring.len() / cap);
-    match (f, count) {
-        (1, 3) => pairs_sum::<2, 3>(ring_rows(ring, st, cap, first, out.len()), out),
-        (2, 5) => pairs_sum::<3, 5>(ring_rows(ring, st, cap, first, out.len()), out),
-        (3, 7) => pairs_sum::<4, 7>(ring_rows(ring, st, cap, first, out.len()), out),
-        (4, 9) => pairs_sum::<5, 9>(ring_rows(ring, st, cap, first, out.len()), out),
-        _ => ring_column_sums(ring, st, cap, first, count, out),
-    }
-    count as f32
-}
-
 /// The weights of a row (columns from `x0`): `dst[i] = 2^t` with
-/// `t = src[i] * k / (nx * ny)`, the window sums turned into the weight's
+/// `t = src[i] * k / (nx * ny)`, where `src = head (+ tail with SPLIT)`
+/// are the window sums (see [`ColumnBox::window`]), turned into the weight's
 /// argument by the patch mean's scale (as [`scale_by_count`]) in the same
 /// pass; with `GUIDED`, `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
 #[inline(always)]
-fn weight_row<const GUIDED: bool>(
-    src: &[f32],
+fn weight_row<const GUIDED: bool, const SPLIT: bool>(
+    [head, tail]: [&[f32]; 2],
     dst: &mut [f32],
     tf: &[f32],
     (x0, clip, f, ny, k): (i64, Rect, i64, f32, f32),
 ) {
     let n = dst.len();
-    let src = &src[..n];
+    let head = &head[..n];
+    let tail = if SPLIT { &tail[..n] } else { tail };
+    let sum = |i: usize| if SPLIT { head[i] + tail[i] } else { head[i] };
     let weight = |t: f32, tf: f32| exp2_weight(if GUIDED && tf < t { tf } else { t });
     let guide = |i: usize| if GUIDED { tf[i] } else { 0.0 };
     let (unclipped, clipped) = window_columns(x0, n, clip, f);
@@ -837,12 +824,18 @@ fn weight_row<const GUIDED: bool>(
     let (u0, len) = (unclipped.start, unclipped.len());
     if len < CHUNK {
         for i in unclipped {
-            dst[i] = weight(src[i] * inner, guide(i));
+            dst[i] = weight(sum(i) * inner, guide(i));
         }
     } else {
         for c in 0..chunk_count(len) {
             let i = u0 + chunk_start(c, len);
-            let (s, g) = (chunk(src, i), if GUIDED { *chunk(tf, i) } else { [0.0; CHUNK] });
+            let (mut s, g) = (*chunk(head, i), if GUIDED { *chunk(tf, i) } else { [0.0; CHUNK] });
+            if SPLIT {
+                let t = chunk(tail, i);
+                for j in 0..CHUNK {
+                    s[j] += t[j];
+                }
+            }
             let mut o = [0.0f32; CHUNK];
             for j in 0..CHUNK {
                 o[j] = weight(s[j] * inner, g[j]);
@@ -851,7 +844,7 @@ fn weight_row<const GUIDED: bool>(
         }
     }
     for (i, nx) in clipped {
-        dst[i] = weight(src[i] * (k / (nx * ny)), guide(i));
+        dst[i] = weight(sum(i) * (k / (nx * ny)), guide(i));
     }
 }
 
@@ -872,43 +865,6 @@ fn window_columns(
         .chain(inner_x1..x1)
         .map(move |x| ((x - x0) as usize, ((x + f).min(clip.x1 - 1) - (x - f).max(clip.x0) + 1) as f32));
     ((inner_x0 - x0) as usize..(inner_x1 - x0) as usize, clipped)
-}
-
-/// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
-/// order), where row `k` is stored in slot `k % cap` of `ring`, slots
-/// `stride` samples apart.
-#[inline(always)]
-fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: usize, count: usize, out: &mut [f32]) {
-    let w = out.len();
-    let row = |i: usize| {
-        let slot = (first + i) % cap;
-        &ring[slot * stride..slot * stride + w]
-    };
-    match count {
-        3 => rows_sum::<3>(ring_rows(ring, stride, cap, first, w), out),
-        5 => rows_sum::<5>(ring_rows(ring, stride, cap, first, w), out),
-        7 => rows_sum::<7>(ring_rows(ring, stride, cap, first, w), out),
-        9 => rows_sum::<9>(ring_rows(ring, stride, cap, first, w), out),
-        _ => {
-            out.copy_from_slice(row(0));
-            for i in 1..count {
-                for (o, v) in out.iter_mut().zip(row(i)) {
-                    *o += *v;
-                }
-            }
-        }
-    }
-}
-
-/// Rows `first..first + N` of `ring` (row `k` in slot `k % cap`), `w` samples each.
-#[inline(always)]
-fn ring_rows<const N: usize>(ring: &[f32], stride: usize, cap: usize, first: usize, w: usize) -> [&[f32]; N] {
-    let mut rows: [&[f32]; N] = [&[]; N];
-    for (i, row) in rows.iter_mut().enumerate() {
-        let slot = (first + i) % cap;
-        *row = &ring[slot * stride..slot * stride + w];
-    }
-    rows
 }
 
 /// Accumulate one row `y` of mean weights of every lane of a group (offsets
@@ -1046,46 +1002,6 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
             a2 = wg.mul_add(q2[g][i], a2);
         }
         (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
-    }
-}
-
-/// The sum of a whole window of `N = 2T - 1` rows from the pairs of
-/// consecutive rows, `(((r0 + r1) + (r2 + r3)) + ...) + r[N - 1]`: the
-/// expression of [`pair_taps_sum`] across rows, with each pair formed in
-/// registers (`T - 1` more adds per sample than stored pair rows would
-/// take, but no second ring, no pass writing it and half the ring memory).
-#[inline(always)]
-fn pairs_sum<const T: usize, const N: usize>(rows: [&[f32]; N], out: &mut [f32]) {
-    const { assert!(N == 2 * T - 1) };
-    let n = out.len();
-    let rows = cut(rows, n);
-    if n < CHUNK {
-        for (i, o) in out.iter_mut().enumerate() {
-            let mut acc = rows[0][i] + rows[1][i];
-            for j in 1..T - 1 {
-                acc += rows[2 * j][i] + rows[2 * j + 1][i];
-            }
-            *o = acc + rows[N - 1][i];
-        }
-        return;
-    }
-    for c in 0..chunk_count(n) {
-        let i = chunk_start(c, n);
-        let (mut acc, b) = (*chunk(rows[0], i), chunk(rows[1], i));
-        for k in 0..CHUNK {
-            acc[k] += b[k];
-        }
-        for j in 1..T - 1 {
-            let (x, y) = (chunk(rows[2 * j], i), chunk(rows[2 * j + 1], i));
-            for k in 0..CHUNK {
-                acc[k] += x[k] + y[k];
-            }
-        }
-        let z = chunk(rows[N - 1], i);
-        for k in 0..CHUNK {
-            acc[k] += z[k];
-        }
-        *chunk_mut(out, i) = acc;
     }
 }
 
