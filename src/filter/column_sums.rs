@@ -185,30 +185,32 @@ fn suffix_rows(
     rows: usize,
     (first, cap, stride, w): (usize, usize, usize, usize),
 ) {
-    let back = |s: usize| if s == 0 { cap - 1 } else { s - 1 };
-    if w < CHUNK {
-        for i in 0..w {
-            let (mut acc, mut s) = (ring[last + i], first);
-            for _ in 0..rows {
-                acc += ring[s * stride + i];
-                suffix[s * stride + i] = acc;
-                s = back(s);
-            }
+    // Row by row: the suffix just formed is read back from L1, and each
+    // row pays its set-up once rather than once per chunk.
+    let mut s = first;
+    for k in 0..rows {
+        let at = s * stride;
+        let h = &ring[at..at + w];
+        if k == 0 {
+            add_rows(&ring[last..last + w], h, &mut suffix[at..at + w]);
+        } else {
+            let from = if s + 1 == cap { 0 } else { s + 1 } * stride;
+            let (next, out) = rows_pair(suffix, from, at, w);
+            add_rows(next, h, out);
         }
-        return;
+        s = if s == 0 { cap - 1 } else { s - 1 };
     }
-    for c in 0..chunk_count(w) {
-        let i = chunk_start(c, w);
-        let (mut acc, mut s) = (*chunk(&ring[last..last + w], i), first);
-        for _ in 0..rows {
-            let at = s * stride;
-            let h = chunk(&ring[at..at + w], i);
-            for k in 0..CHUNK {
-                acc[k] += h[k];
-            }
-            *chunk_mut(&mut suffix[at..at + w], i) = acc;
-            s = back(s);
-        }
+}
+
+/// Row `from` of `buf` to read and row `to` to write (distinct, `w` samples each).
+#[inline(always)]
+fn rows_pair(buf: &mut [f32], from: usize, to: usize, w: usize) -> (&[f32], &mut [f32]) {
+    if from < to {
+        let (a, b) = buf.split_at_mut(to);
+        (&a[from..from + w], &mut b[..w])
+    } else {
+        let (a, b) = buf.split_at_mut(from);
+        (&b[..w], &mut a[to..to + w])
     }
 }
 
