@@ -147,7 +147,14 @@ impl ColumnBox {
     /// A whole window's rows (see [`ColumnBox::window`]), or the height of
     /// a clipped one.
     #[inline(always)]
-    fn whole(&self, y0: i64, y: i64, clip: Rect, f: i64, w: usize) -> Result<(&[f32], Option<&[f32]>), usize> {
+    pub(super) fn whole(
+        &self,
+        y0: i64,
+        y: i64,
+        clip: Rect,
+        f: i64,
+        w: usize,
+    ) -> Result<(&[f32], Option<&[f32]>), usize> {
         let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
         let count = (b - a + 1) as usize;
         if count != self.cap {

@@ -529,20 +529,39 @@ fn run_step(
                         if !in_rows(side.a_y, yl) {
                             continue;
                         }
-                        for (g, lane) in side.lanes.iter().enumerate() {
-                            let buf = &mut bufs[lane_buf(j, si, g)];
-                            let aw = lane.acc.width();
-                            // Mean weights times the full window's count: numerators
-                            // and denominator share the factor, and it is exactly 1
-                            // where the window is not clipped (no multiply there).
-                            let mw = &mut buf.mean_w[..aw];
-                            let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
-                            scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
+                        // Where every lane's window is whole (no column of the row
+                        // clipped), the mean weights are the window's one or two
+                        // rows, added inside the accumulation; else each lane's
+                        // are formed and scaled in `mean_w`. The same sums.
+                        let direct = job.values.len() == 3
+                            && side.lanes.iter().all(|l| {
+                                l.acc.x0 >= l.valid.x0 + f
+                                    && l.acc.x1 <= l.valid.x1 - f
+                                    && yl - f >= l.valid.y0
+                                    && yl + f < l.valid.y1
+                            });
+                        if !direct {
+                            for (g, lane) in side.lanes.iter().enumerate() {
+                                let buf = &mut bufs[lane_buf(j, si, g)];
+                                let aw = lane.acc.width();
+                                // Mean weights times the full window's count: numerators
+                                // and denominator share the factor, and it is exactly 1
+                                // where the window is not clipped (no multiply there).
+                                let mw = &mut buf.mean_w[..aw];
+                                let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
+                                scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
+                            }
                         }
-                        let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
+                        let mut rows = [LaneRow { w: &[], t: &[], x0: 0, dx: 0 }; GROUP_MAX];
                         for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
-                            let w = &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()];
-                            *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
+                            let buf = &bufs[lane_buf(j, si, g)];
+                            let aw = lane.acc.width();
+                            let (w, t) = if direct {
+                                buf.h2.whole(side.w_y.0, yl, lane.valid, f, aw).expect("a whole window")
+                            } else {
+                                (&buf.mean_w[..aw], None)
+                            };
+                            *row = LaneRow { w, t: t.unwrap_or(&[]), x0: lane.acc.x0, dx: lane.dx };
                         }
                         accumulate(
                             &mut num[j],
@@ -717,10 +736,13 @@ struct LaneBuffers {
     mean_w: Aligned,
 }
 
-/// One lane's row of mean weights, for columns from `x0`.
+/// One lane's row of mean weights, for columns from `x0`: `w`, or `w + t`
+/// when `t` is not empty (a whole window's two rows, see
+/// [`ColumnBox::window`], added where they are used).
 #[derive(Clone, Copy)]
 struct LaneRow<'a> {
     w: &'a [f32],
+    t: &'a [f32],
     x0: i64,
     dx: i64,
 }
@@ -893,7 +915,8 @@ fn accumulate(
     for x in (u0..c0.min(u1)).chain(c1.max(u0)..u1) {
         let i = row_off + (x - block.x0) as usize;
         for l in rows.iter().filter(|l| l.x0 <= x && x < end(l)) {
-            let w = l.w[(x - l.x0) as usize];
+            let k = (x - l.x0) as usize;
+            let w = if l.t.is_empty() { l.w[k] } else { l.w[k] + l.t[k] };
             den[i] += w;
             for (c, n) in num.iter_mut().enumerate() {
                 n[i] = w.mul_add(values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0], n[i]);
@@ -904,40 +927,50 @@ fn accumulate(
         let span = row_off + (c0 - block.x0) as usize..row_off + (c1 - block.x0) as usize;
         // One arm per group size: GROUP_MAX must stay 4 for this match.
         const _: () = assert!(GROUP_MAX == 4);
-        match rows.len() {
-            1 => accumulate_span::<1>(num, den, values, rows, (y, dy), c0, c1, span),
-            2 => accumulate_span::<2>(num, den, values, rows, (y, dy), c0, c1, span),
-            3 => accumulate_span::<3>(num, den, values, rows, (y, dy), c0, c1, span),
-            _ => accumulate_span::<GROUP_MAX>(num, den, values, rows, (y, dy), c0, c1, span),
+        let at = ((y, dy), c0, c1, span);
+        // Every lane's row is split alike (the same window rows), and only
+        // with three channels.
+        match (rows.len(), rows[0].t.is_empty()) {
+            (1, true) => accumulate_span::<1, false>(num, den, values, rows, at),
+            (2, true) => accumulate_span::<2, false>(num, den, values, rows, at),
+            (3, true) => accumulate_span::<3, false>(num, den, values, rows, at),
+            (_, true) => accumulate_span::<GROUP_MAX, false>(num, den, values, rows, at),
+            (1, false) => accumulate_span::<1, true>(num, den, values, rows, at),
+            (2, false) => accumulate_span::<2, true>(num, den, values, rows, at),
+            (3, false) => accumulate_span::<3, true>(num, den, values, rows, at),
+            (_, false) => accumulate_span::<GROUP_MAX, true>(num, den, values, rows, at),
         }
     }
 }
 
-/// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover.
+/// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover
+/// (with `SPLIT`, each lane's weights are `w + t`: three channels only).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn accumulate_span<const G: usize>(
+#[allow(clippy::type_complexity)]
+fn accumulate_span<const G: usize, const SPLIT: bool>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
     rows: &[LaneRow<'_>],
-    (y, dy): (i64, i64),
-    c0: i64,
-    c1: i64,
-    span: std::ops::Range<usize>,
+    ((y, dy), c0, c1, span): ((i64, i64), i64, i64, std::ops::Range<usize>),
 ) {
     let n = (c1 - c0) as usize;
-    let mut w: [&[f32]; G] = [&[]; G];
-    for (wg, row) in w.iter_mut().zip(rows) {
-        *wg = &row.w[(c0 - row.x0) as usize..][..n];
+    let (mut w, mut t): ([&[f32]; G], [&[f32]; G]) = ([&[]; G], [&[]; G]);
+    for g in 0..G {
+        let (row, from) = (&rows[g], (c0 - rows[g].x0) as usize);
+        w[g] = &row.w[from..][..n];
+        if SPLIT {
+            t[g] = &row.t[from..][..n];
+        }
     }
     let q = |c: usize| lane_values::<G>(values[c], rows, y + dy, c0, c1);
     let d = &mut den[span.clone()];
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
         let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
-        fused_rgb::<G>([d, n0, n1, n2], w, [q(0), q(1), q(2)]);
+        fused_rgb::<G, SPLIT>([d, n0, n1, n2], [w, t], [q(0), q(1), q(2)]);
     } else {
+        assert!(!SPLIT, "split weights with three channels only");
         for i in 0..n {
             let mut dd = d[i];
             for wg in &w {
@@ -971,10 +1004,15 @@ fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i6
 /// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
 /// (separate `&mut` arguments: the compiler knows they do not alias).
 #[inline(always)]
-fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [q0, q1, q2]: [[&[f32]; G]; 3]) {
+fn fused_rgb<const G: usize, const SPLIT: bool>(
+    [d, n0, n1, n2]: [&mut [f32]; 4],
+    [w, t]: [[&[f32]; G]; 2],
+    [q0, q1, q2]: [[&[f32]; G]; 3],
+) {
     let n = d.len();
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
     let (w, q0, q1, q2) = (cut(w, n), cut(q0, n), cut(q1, n), cut(q2, n));
+    let t = if SPLIT { cut(t, n) } else { t };
     // Whole chunks (an update in place: no overlapping last chunk), then
     // the remaining samples one by one with the same operations.
     let whole = n / CHUNK * CHUNK;
@@ -982,7 +1020,13 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
         let i = c * CHUNK;
         let (mut dd, mut a0, mut a1, mut a2) = (*chunk(d, i), *chunk(n0, i), *chunk(n1, i), *chunk(n2, i));
         for g in 0..G {
-            let (wg, x0, x1, x2) = (chunk(w[g], i), chunk(q0[g], i), chunk(q1[g], i), chunk(q2[g], i));
+            let (mut wg, x0, x1, x2) = (*chunk(w[g], i), chunk(q0[g], i), chunk(q1[g], i), chunk(q2[g], i));
+            if SPLIT {
+                let tg = chunk(t[g], i);
+                for k in 0..CHUNK {
+                    wg[k] += tg[k];
+                }
+            }
             for k in 0..CHUNK {
                 dd[k] += wg[k];
                 a0[k] = wg[k].mul_add(x0[k], a0[k]);
@@ -995,7 +1039,7 @@ fn fused_rgb<const G: usize>([d, n0, n1, n2]: [&mut [f32]; 4], w: [&[f32]; G], [
     for i in whole..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = w[g][i];
+            let wg = if SPLIT { w[g][i] + t[g][i] } else { w[g][i] };
             dd += wg;
             a0 = wg.mul_add(q0[g][i], a0);
             a1 = wg.mul_add(q1[g][i], a1);
