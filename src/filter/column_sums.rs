@@ -81,7 +81,7 @@ impl ColumnBox {
         let t = self.cap as i64;
         let at = self.slot(y, y0) * self.stride;
         let (ring, prefix) = (&self.ring[at..at + w], &mut self.prefix[..w]);
-        let r = y.rem_euclid(t);
+        let r = block_row(y, t);
         if r == 0 || y == y0 {
             prefix.copy_from_slice(ring);
         } else {
@@ -162,7 +162,7 @@ impl ColumnBox {
         }
         debug_assert_eq!(self.prefix_row, b, "a whole window is summed right after its last row");
         let prefix = &self.prefix[..w];
-        let r = a.rem_euclid(self.cap as i64) as usize;
+        let r = block_row(a, self.cap as i64) as usize;
         if r == 0 {
             return Ok((prefix, None));
         }
@@ -178,6 +178,14 @@ impl ColumnBox {
         let first = ((y - f).max(clip.y0) - y0) as usize;
         ring_column_sums(&self.ring, self.stride, self.cap, first, count, out);
     }
+}
+
+/// Row `y`'s index in its block of `t` rows (`y.rem_euclid(t)`, which the
+/// tier wrappers would call out of line).
+#[inline(always)]
+fn block_row(y: i64, t: i64) -> i64 {
+    let r = y % t;
+    if r < 0 { r + t } else { r }
 }
 
 /// The suffixes of a block's `rows` rows before its last (ring row at

@@ -718,12 +718,16 @@ impl Aligned {
 
 impl std::ops::Deref for Aligned {
     type Target = [f32];
+    // Always inlined: an out-of-line call from a tier wrapper costs a
+    // `vzeroupper` and the call itself, per row.
+    #[inline(always)]
     fn deref(&self) -> &[f32] {
         &self.data[self.off..self.off + self.len]
     }
 }
 
 impl std::ops::DerefMut for Aligned {
+    #[inline(always)]
     fn deref_mut(&mut self) -> &mut [f32] {
         &mut self.data[self.off..self.off + self.len]
     }
