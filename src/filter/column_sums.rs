@@ -63,6 +63,7 @@ impl ColumnBox {
 
     #[inline(always)]
     fn slot(&self, y: i64, y0: i64) -> usize {
+        debug_assert!(y >= y0, "row {y} before the step's first row {y0}");
         (y - y0) as usize % self.cap
     }
 
@@ -89,7 +90,7 @@ impl ColumnBox {
         }
         self.prefix_row = y;
         if r == t - 1 {
-            // `S[j] = h[j] + S[j + 1]` for `j` from `y - 1` down to the
+            // `S[j] = S[j + 1] + h[j]` for `j` from `y - 1` down to the
             // block's second row (its first is never needed: a window
             // starting there is `P`), or to the step's first row.
             let lo = (y - t + 2).max(y0);

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# A/B timing of two builds of `examples/timing` on this shared, noisy
+# machine (docs/performance.md's step tables).
+#
+#   bash benches/ab.sh alternate ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
+#   bash benches/ab.sh paired    ROUNDS MODE WIDTH HEIGHT BIN_A BIN_B
+#
+# alternate: runs the binaries one after the other, ROUNDS times, and prints
+#   each one's minimum and all its times (RUNS=N runs per process, default 1,
+#   of which the binary reports the minimum).
+# paired: runs A and B at the same time, one thread each, pinned to cores 0
+#   and 1 (swapped every round), so that both see the same load; prints each
+#   round's B/A and the median, min and max of the ratios (RUNS default 2).
+# Build an older commit's binary with e.g.
+#   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
+set -euo pipefail
+how=$1; rounds=$2; mode=$3; w=$4; h=$5; shift 5
+case "$how" in
+  alternate)
+    threads=$1; shift
+    for _ in $(seq "$rounds"); do
+      for b in "$@"; do
+        echo "$b $("$b" "$mode" "$w" "$h" "$threads" 10 "${RUNS:-1}" | cut -d, -f6)"
+      done
+    done | awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
+                END { for (k in m) print k, "min", m[k], "all", s[k] }'
+    ;;
+  paired)
+    a=$1; b=$2
+    tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+    for i in $(seq "$rounds"); do
+      if [ $((i % 2)) = 0 ]; then ca=0; cb=1; else ca=1; cb=0; fi
+      taskset -c $ca "$a" "$mode" "$w" "$h" 1 10 "${RUNS:-2}" | cut -d, -f6 > "$tmp/a" &
+      taskset -c $cb "$b" "$mode" "$w" "$h" 1 10 "${RUNS:-2}" | cut -d, -f6 > "$tmp/b" &
+      wait
+      echo "$(cat "$tmp/a") $(cat "$tmp/b")" | awk '{ print $1, $2, $2 / $1 }' | tee -a "$tmp/rounds"
+    done
+    awk '{ print $3 }' "$tmp/rounds" | sort -g | awk '{ r[NR] = $1 }
+      END { print "median B/A", r[int((NR + 1) / 2)], "min", r[1], "max", r[NR] }'
+    ;;
+  *) echo "usage: ab.sh alternate|paired ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
+esac
