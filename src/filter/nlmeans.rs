@@ -1053,6 +1053,7 @@ fn fused_rgb<const G: usize, const SPLIT: bool>(
     }
 }
 
+/// `out = ((rows[0] + rows[1]) + ...) + rows[T - 1]`, chunk by chunk.
 #[inline(always)]
 fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     let n = out.len();
