@@ -23,7 +23,7 @@
 //! A window clipped by the offset's valid rectangle adds its rows in
 //! increasing order from the ring of the last `T` rows.
 
-use super::kernels::{CHUNK, chunk, chunk_count, chunk_mut, chunk_start, cut};
+use super::kernels::{CHUNK, chunk, chunk_mut, rows_sum};
 use super::nlmeans::{Aligned, stride};
 use crate::geom::Rect;
 
@@ -109,7 +109,7 @@ impl ColumnBox {
     pub(super) fn sums(&self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
         let w = out.len();
         match self.whole(y0, y, clip, f, w) {
-            Ok((head, Some(tail))) => add_rows(head, tail, out),
+            Ok((head, Some(tail))) => rows_sum([head, tail], out),
             Ok((head, None)) => out.copy_from_slice(head),
             Err(count) => self.clipped(y0, y, clip, f, count, out),
         }
@@ -208,11 +208,11 @@ fn suffix_rows(
         let at = s * stride;
         let h = &ring[at..at + w];
         if k == 0 {
-            add_rows(&ring[last..last + w], h, &mut suffix[at..at + w]);
+            rows_sum([&ring[last..last + w], h], &mut suffix[at..at + w]);
         } else {
             let from = if s + 1 == cap { 0 } else { s + 1 } * stride;
             let (next, out) = rows_pair(suffix, from, at, w);
-            add_rows(next, h, out);
+            rows_sum([next, h], out);
         }
         s = if s == 0 { cap - 1 } else { s - 1 };
     }
@@ -252,27 +252,6 @@ fn add_assign(a: &mut [f32], b: &[f32]) {
     }
     for i in whole..n {
         a[i] += b[i];
-    }
-}
-
-/// `out = a + b`.
-#[inline(always)]
-fn add_rows(a: &[f32], b: &[f32], out: &mut [f32]) {
-    let n = out.len();
-    let [a, b] = cut([a, b], n);
-    if n < CHUNK {
-        for (o, (x, y)) in out.iter_mut().zip(a.iter().zip(b)) {
-            *o = *x + *y;
-        }
-        return;
-    }
-    for c in 0..chunk_count(n) {
-        let i = chunk_start(c, n);
-        let (mut x, y) = (*chunk(a, i), chunk(b, i));
-        for k in 0..CHUNK {
-            x[k] += y[k];
-        }
-        *chunk_mut(out, i) = x;
     }
 }
 

@@ -265,6 +265,35 @@ pub fn cut<const N: usize>(rows: [&[f32]; N], n: usize) -> [&[f32]; N] {
     out
 }
 
+/// `out = ((rows[0] + rows[1]) + ...) + rows[T - 1]`, chunk by chunk (the last
+/// chunk overlaps its predecessor: `out` is not an input).
+#[inline(always)]
+pub fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
+    let n = out.len();
+    if n < CHUNK {
+        let rows = cut(rows, n);
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut acc = rows[0][i];
+            for row in &rows[1..] {
+                acc += row[i];
+            }
+            *o = acc;
+        }
+        return;
+    }
+    for c in 0..chunk_count(n) {
+        let i = chunk_start(c, n);
+        let mut acc = *chunk(rows[0], i);
+        for row in &rows[1..] {
+            let r = chunk(row, i);
+            for k in 0..CHUNK {
+                acc[k] += r[k];
+            }
+        }
+        *chunk_mut(out, i) = acc;
+    }
+}
+
 /// [`accumulate_colour_distance_pair`] over three channels at once into
 /// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
 /// same operations as three calls on rows filled with zeros, without the rows'

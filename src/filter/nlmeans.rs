@@ -12,7 +12,7 @@ use super::column_sums::ColumnBox;
 use super::kernels::{
     CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
     colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
-    fold_feature_term, fold_feature_term_any, log2_distance_scale,
+    fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
 };
 use super::simd::{self, Tier};
 use crate::geom::Rect;
@@ -1050,34 +1050,6 @@ fn fused_rgb<const G: usize, const SPLIT: bool>(
             a2 = wg.mul_add(q2[g][i], a2);
         }
         (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
-    }
-}
-
-/// `out = ((rows[0] + rows[1]) + ...) + rows[T - 1]`, chunk by chunk.
-#[inline(always)]
-fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
-    let n = out.len();
-    if n < CHUNK {
-        let rows = cut(rows, n);
-        for (i, o) in out.iter_mut().enumerate() {
-            let mut acc = rows[0][i];
-            for row in &rows[1..] {
-                acc += row[i];
-            }
-            *o = acc;
-        }
-        return;
-    }
-    for c in 0..chunk_count(n) {
-        let i = chunk_start(c, n);
-        let mut acc = *chunk(rows[0], i);
-        for row in &rows[1..] {
-            let r = chunk(row, i);
-            for k in 0..CHUNK {
-                acc[k] += r[k];
-            }
-        }
-        *chunk_mut(out, i) = acc;
     }
 }
 
