@@ -294,6 +294,78 @@ pub fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     }
 }
 
+/// The 7-tap window sums `out[i] = ((p[i] + p[i + 2]) + p[i + 4]) + src[i + 6]`
+/// with `p[j] = src[j] + src[j + 1]` (`src` holds `out.len() + 6` samples):
+/// the same expression as the portable pair sums with `F = 3`, its shifted
+/// operands formed in registers (`valignd`) from one load per chunk instead
+/// of five loads, most of them split across cache lines, and a stored pair row.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
+    use std::arch::x86_64::*;
+    let n = out.len();
+    assert_eq!(src.len(), n + 6, "a 7-tap window per output");
+    if n < CHUNK {
+        for (i, o) in out.iter_mut().enumerate() {
+            let p = |j: usize| src[j] + src[j + 1];
+            *o = ((p(i) + p(i + 2)) + p(i + 4)) + src[i + 6];
+        }
+        return;
+    }
+    let len = src.len();
+    // Samples `at..at + 16` of `src`, lanes past its end zero (masked off,
+    // so never read).
+    let load = |at: usize| {
+        let k: __mmask16 = if at >= len {
+            0
+        } else if len - at >= 16 {
+            0xFFFF
+        } else {
+            (1u16 << (len - at)) - 1
+        };
+        // SAFETY: the mask selects only lanes inside `src`; masked-off
+        // lanes are not accessed.
+        unsafe { _mm512_maskz_loadu_ps(k, src.as_ptr().wrapping_add(at)) }
+    };
+    // `(a:b)` shifted down by `K` lanes: lane `j` is `a[j + K]`, or `b[j + K - 16]`.
+    macro_rules! sh {
+        ($k:literal, $a:expr, $b:expr) => {
+            _mm512_castsi512_ps(_mm512_alignr_epi32::<$k>(_mm512_castps_si512($b), _mm512_castps_si512($a)))
+        };
+    }
+    // The outputs `i..i + 16` from `x0, x1` = samples from `i`, `i + 16`, and
+    // `p0, p1` = pair sums from `i`, `i + 16` (only the first 4 of `p1` are used).
+    let chunk_at = |x0: __m512, x1: __m512, p0: __m512, p1: __m512| {
+        let acc = _mm512_add_ps(p0, sh!(2, p0, p1));
+        let acc = _mm512_add_ps(acc, sh!(4, p0, p1));
+        _mm512_add_ps(acc, sh!(6, x0, x1))
+    };
+    let full = n / CHUNK;
+    let (mut x0, mut x1) = (load(0), load(CHUNK));
+    let mut p0 = _mm512_add_ps(x0, sh!(1, x0, x1));
+    for c in 0..full {
+        let i = c * CHUNK;
+        let x2 = load(i + 2 * CHUNK);
+        let p1 = _mm512_add_ps(x1, sh!(1, x1, x2));
+        let o = chunk_at(x0, x1, p0, p1);
+        // SAFETY: `i + 16 <= n`.
+        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
+        (x0, x1, p0) = (x1, x2, p1);
+    }
+    if !n.is_multiple_of(CHUNK) {
+        // The last 16 outputs (overlapping the previous chunk), from scratch.
+        let i = n - CHUNK;
+        let (x0, x1, x2) = (load(i), load(i + CHUNK), load(i + 2 * CHUNK));
+        let (p0, p1) = (_mm512_add_ps(x0, sh!(1, x0, x1)), _mm512_add_ps(x1, sh!(1, x1, x2)));
+        // SAFETY: `i + 16 == n`.
+        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), chunk_at(x0, x1, p0, p1)) };
+    }
+}
+
 /// [`accumulate_colour_distance_pair`] over three channels at once into
 /// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
 /// same operations as three calls on rows filled with zeros, without the rows'
@@ -579,6 +651,37 @@ fn variance_step(a: f32, p: f32, q: f32, vp: f32, vq: f32, inv: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The AVX-512 window sums give the bits of the expression every other
+    /// tier computes, for rows shorter than, equal to and not a multiple of
+    /// a chunk.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn taps7_sum_avx512_matches_the_pair_sum_expression() {
+        if !std::arch::is_x86_feature_detected!("avx512f") {
+            eprintln!("skipped: this CPU has no AVX-512F");
+            return;
+        }
+        let mut state = 0x2545_f491_u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            // Values of mixed magnitude and sign, so that the order of the adds shows.
+            (state as f32 / u32::MAX as f32 - 0.3) * 10f32.powi((state % 7) as i32 - 3)
+        };
+        for n in (1..50).chain([63, 64, 65, 100, 513]) {
+            let src: Vec<f32> = (0..n + 6).map(|_| next()).collect();
+            let mut out = vec![f32::NAN; n];
+            // SAFETY: AVX-512F was detected above.
+            unsafe { taps7_sum_avx512(&src, &mut out) };
+            for (i, o) in out.iter().enumerate() {
+                let p = |j: usize| src[j] + src[j + 1];
+                let want = ((p(i) + p(i + 2)) + p(i + 4)) + src[i + 6];
+                assert_eq!(o.to_bits(), want.to_bits(), "n = {n}, i = {i}");
+            }
+        }
+    }
 
     #[test]
     fn exp2_weight_matches_f64_within_bound() {

@@ -9,6 +9,8 @@
 use rayon::prelude::*;
 
 use super::column_sums::ColumnBox;
+#[cfg(target_arch = "x86_64")]
+use super::kernels::taps7_sum_avx512;
 use super::kernels::{
     CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
     colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
@@ -146,13 +148,13 @@ fn filter_block(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `simd::current` returns AVX2 only when the CPU has avx2.
         Tier::Avx2 => unsafe { filter_block_avx2(jobs, features, frame, block, s) },
-        _ => filter_block_body(jobs, features, frame, block, s),
+        _ => filter_block_body::<false>(jobs, features, frame, block, s),
     }
 }
 
 /// One wrapper per tier: the same body compiled with the tier's target feature.
 macro_rules! tier_wrapper {
-    ($name:ident, $feature:literal) => {
+    ($name:ident, $feature:literal, $wide:literal) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $feature)]
         fn $name(
@@ -162,13 +164,13 @@ macro_rules! tier_wrapper {
             block: Rect,
             s: &NlmSettings,
         ) -> Vec<Vec<Plane>> {
-            filter_block_body(jobs, features, frame, block, s)
+            filter_block_body::<$wide>(jobs, features, frame, block, s)
         }
     };
 }
 
-tier_wrapper!(filter_block_avx2, "avx2,fma");
-tier_wrapper!(filter_block_avx512, "avx512f,fma");
+tier_wrapper!(filter_block_avx2, "avx2,fma", false);
+tier_wrapper!(filter_block_avx512, "avx512f,fma", true);
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set.
@@ -205,7 +207,7 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma");
 /// coordinate. The same operations for a pixel whichever block, tile or
 /// lane computes it.
 #[inline(always)]
-fn filter_block_body(
+fn filter_block_body<const AVX512: bool>(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
     frame: Rect,
@@ -268,7 +270,7 @@ fn filter_block_body(
                 }
             }
             let sides = [Side::new(&group[..g], dy, 0), Side::new(&[], -dy, dy)];
-            run_step(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
+            run_step::<AVX512>(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
             continue;
         }
         // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
@@ -308,7 +310,7 @@ fn filter_block_body(
             continue;
         }
         let sides = [Side::new(&fwd[..nf], dy, 0), Side::new(&mir[..nm], -dy, dy)];
-        run_step(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
+        run_step::<AVX512>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
     }
 
     num.into_iter()
@@ -420,7 +422,7 @@ fn in_rows(rows: (i64, i64), y: i64) -> bool {
 /// terms before the forward group's (`dy > 0`: the mirror reaches the row
 /// first; `dy = 0`: forward, then mirror), a fixed order for every block.
 #[inline(always)]
-fn run_step(
+fn run_step<const AVX512: bool>(
     ctx: &StepCtx<'_, '_>,
     num: &mut [Vec<Aligned>],
     den: &mut [Aligned],
@@ -459,7 +461,7 @@ fn run_step(
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
                         distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
                         let buf = &mut bufs[lane_buf(j, 0, g)];
-                        push_h1(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
+                        push_h1::<AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
                     }
                 }
                 Some(pairs) => {
@@ -476,7 +478,15 @@ fn run_step(
                             let lane = &side.lanes[g];
                             let from = (lane.d.x0 - x0) as usize;
                             let row = &row[from..from + lane.d.width()];
-                            push_h1(lane, &mut bufs[lane_buf(j, si, g)], row, lane.d.x0, (yl, side.d_y.0), f, psum);
+                            push_h1::<AVX512>(
+                                lane,
+                                &mut bufs[lane_buf(j, si, g)],
+                                row,
+                                lane.d.x0,
+                                (yl, side.d_y.0),
+                                f,
+                                psum,
+                            );
                         }
                     }
                 }
@@ -514,7 +524,7 @@ fn run_step(
                         }
                         let aw = lane.acc.width();
                         let h2 = buf.h2.row_mut(yl, side.w_y.0, aw);
-                        window_sums_row(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
+                        window_sums_row::<AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
                         buf.h2.pushed(yl, side.w_y.0, aw);
                     }
                 }
@@ -635,9 +645,17 @@ fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
 /// the lane's first row of the step) as its horizontal window sums into
 /// the lane's box `h1`.
 #[inline(always)]
-fn push_h1(lane: &Lane, buf: &mut LaneBuffers, d: &[f32], x0: i64, (y, y0): (i64, i64), f: i64, pairs: &mut [f32]) {
+fn push_h1<const AVX512: bool>(
+    lane: &Lane,
+    buf: &mut LaneBuffers,
+    d: &[f32],
+    x0: i64,
+    (y, y0): (i64, i64),
+    f: i64,
+    pairs: &mut [f32],
+) {
     let ww = lane.w.width();
-    window_sums_row(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
+    window_sums_row::<AVX512>(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
     buf.h1.pushed(y, y0, ww);
 }
 
@@ -754,11 +772,20 @@ struct LaneRow<'a> {
 /// Horizontal window sums of one row: `dst[x] = sum of src over
 /// [x - f, x + f] ∩ clip` for `x` from `dst_x0`. A whole window (f <= 4)
 /// adds the pair sums of columns `(x - f, x - f + 1), (x - f + 2, x - f + 3), ...`
-/// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`); a clipped
+/// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`; with
+/// `AVX512` and `f = 3`, [`taps7_sum_avx512`], the same sums); a clipped
 /// window (or f > 4) starts from its first sample and adds the others in
 /// increasing x. `src` starts at column `src_x0` and covers every window.
 #[inline(always)]
-fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, dst: &mut [f32], pairs: &mut [f32]) {
+fn window_sums_row<const AVX512: bool>(
+    src: &[f32],
+    src_x0: i64,
+    clip: Rect,
+    f: i64,
+    dst_x0: i64,
+    dst: &mut [f32],
+    pairs: &mut [f32],
+) {
     let dst_x1 = dst_x0 + dst.len() as i64;
     let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
     let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
@@ -778,6 +805,10 @@ fn window_sums_row(src: &[f32], src_x0: i64, clip: Rect, f: i64, dst_x0: i64, ds
         match f {
             1 => pair_taps_sum::<1, 2>(&src[from..from + n + 2], pairs, out),
             2 => pair_taps_sum::<2, 3>(&src[from..from + n + 4], pairs, out),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
+            // which runs only on CPUs with avx512f.
+            3 if AVX512 => unsafe { taps7_sum_avx512(&src[from..from + n + 6], out) },
             3 => pair_taps_sum::<3, 4>(&src[from..from + n + 6], pairs, out),
             4 => pair_taps_sum::<4, 5>(&src[from..from + n + 8], pairs, out),
             _ => {
