@@ -4,6 +4,7 @@
 #
 #   bash benches/ab.sh alternate ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
 #   bash benches/ab.sh paired    ROUNDS MODE WIDTH HEIGHT BIN_A BIN_B
+#   bash benches/ab.sh interleave PAIRS MODE WIDTH HEIGHT BIN_A BIN_B
 #
 # alternate: runs the binaries one after the other, ROUNDS times, and prints
 #   each one's minimum and all its times (RUNS=N runs per process, default 1,
@@ -11,6 +12,11 @@
 # paired: runs A and B at the same time, one thread each, pinned to cores 0
 #   and 1 (swapped every round), so that both see the same load; prints each
 #   round's B/A and the median, min and max of the ratios (RUNS default 2).
+# interleave: on each core at once, PAIRS back-to-back runs of A then B (core
+#   1: B then A), one thread each; prints the median and quartiles of the
+#   2 x PAIRS ratios B/A of adjacent runs (RUNS default 1). Adjacent runs
+#   share the load of the same seconds, so this resists slow swings of the
+#   shared host better than `paired`.
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -38,5 +44,21 @@ case "$how" in
     awk '{ print $3 }' "$tmp/rounds" | sort -g | awk '{ r[NR] = $1 }
       END { print "median B/A", r[int((NR + 1) / 2)], "min", r[1], "max", r[NR] }'
     ;;
-  *) echo "usage: ab.sh alternate|paired ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
+  interleave)
+    a=$1; b=$2
+    tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+    one() { taskset -c "$1" "$2" "$mode" "$w" "$h" 1 10 "${RUNS:-1}" | cut -d, -f6; }
+    for core in 0 1; do
+      if [ "$core" = 0 ]; then first=$a; second=$b; else first=$b; second=$a; fi
+      for _ in $(seq "$rounds"); do
+        x=$(one "$core" "$first"); y=$(one "$core" "$second")
+        if [ "$core" = 0 ]; then echo "$x $y"; else echo "$y $x"; fi
+      done > "$tmp/core$core" &
+    done
+    wait
+    cat "$tmp/core0" "$tmp/core1" | awk '{ print $2 / $1 }' | sort -g | awk '{ r[NR] = $1 }
+      END { printf "pairs %d median B/A %.4f quartiles %.4f %.4f min %.4f max %.4f\n",
+            NR, r[int((NR + 1) / 2)], r[int((NR + 3) / 4)], r[int((3 * NR + 1) / 4)], r[1], r[NR] }'
+    ;;
+  *) echo "usage: ab.sh alternate|paired|interleave ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
 esac
