@@ -34,12 +34,17 @@ python3 - "$out/annotated.txt" <<'PY'
 import re, sys
 rows = []
 num = r'([0-9,]+|\.)\s+(?:\([ 0-9.]+%\)\s+)?'
+source = None
 for line in open(sys.argv[1]):
+    f = re.match(r'-- (?:User|Auto)-annotated source: .*/(src/.*)', line)
+    if f:
+        source = f.group(1) if f.group(1).startswith('src/filter/') else None
+        continue
     m = re.match(r'\s*' + num + num + num + r'(.*)', line)
-    if not m or '/' in m.group(4) or 'TOTALS' in m.group(4) or 'events annotated' in m.group(4):
+    if not source or not m or 'events annotated' in line or m.group(4).startswith('<counts'):
         continue
     v = [0 if g == '.' else int(g.replace(',', '')) for g in m.groups()[:3]]
-    rows.append((v[0], v[1], m.group(4).strip()[:90]))
+    rows.append((v[0], v[1], source.split('/')[-1] + ': ' + m.group(4).strip()[:80]))
 for k, name in ((0, 'L1 read misses'), (1, 'L1 write misses')):
     total = sum(r[k] for r in rows)
     print(f'\n{name} by source line (of {total:,} in the kernel sources):')
