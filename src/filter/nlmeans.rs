@@ -16,7 +16,9 @@ use super::kernels::{
     colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
     fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
 };
-use super::simd::{self, Tier};
+use super::simd;
+#[cfg(target_arch = "x86_64")]
+use super::simd::Tier;
 use crate::geom::Rect;
 use crate::image::Plane;
 
