@@ -81,6 +81,13 @@ impl Plane {
         &self.data[i..i + (x1 - x0) as usize]
     }
 
+    /// Mutable samples of row `y` for columns `[x0, x1)`.
+    #[inline(always)]
+    pub fn row_mut(&mut self, y: i64, x0: i64, x1: i64) -> &mut [f32] {
+        let i = self.index(x0, y);
+        &mut self.data[i..i + (x1 - x0) as usize]
+    }
+
     /// A copy of the samples inside `rect` (which must lie inside the plane).
     pub fn crop(&self, rect: Rect) -> Plane {
         assert!(self.rect.contains_rect(&rect), "crop {rect:?} outside {:?}", self.rect);

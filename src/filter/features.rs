@@ -26,37 +26,82 @@ pub struct Feature {
 /// is missing and the other side is used alone; with both missing (a frame one
 /// pixel wide or tall) that axis contributes 0. `values` must cover
 /// `(target ⊕ 1) ∩ frame`.
+///
+/// Row by row: the columns with both horizontal neighbours in the frame in
+/// one loop over slices (vectorised), the frame's first and last columns by
+/// [`gradient_at`]. Every pixel gets the same expression either way.
 pub fn squared_gradient(values: &[Plane], frame: Rect, target: Rect) -> Plane {
     let mut g = Plane::filled(target, 0.0);
+    // Columns whose left and right neighbours both lie in the frame.
+    let ix0 = (frame.x0 + 1).max(target.x0);
+    let ix1 = (frame.x1 - 1).min(target.x1).max(ix0);
     for fv in values {
         for y in target.y0..target.y1 {
-            for x in target.x0..target.x1 {
-                let c = fv.get(x, y);
-                let side = |xx: i64, yy: i64| -> Option<f32> {
-                    frame.contains(xx, yy).then(|| {
-                        let d = (c - fv.get(xx, yy)) * 0.5;
-                        d * d
-                    })
-                };
-                let pair = |a: Option<f32>, b: Option<f32>| match (a, b) {
-                    (Some(a), Some(b)) => {
-                        if b < a {
-                            b
-                        } else {
-                            a
-                        }
-                    }
-                    (Some(a), None) | (None, Some(a)) => a,
-                    (None, None) => 0.0,
-                };
-                let h = pair(side(x - 1, y), side(x + 1, y));
-                let v = pair(side(x, y - 1), side(x, y + 1));
-                let sum = g.get(x, y) + (h + v);
+            for x in (target.x0..ix0).chain(ix1.max(target.x0)..target.x1) {
+                let sum = g.get(x, y) + gradient_at(fv, frame, x, y);
                 g.set(x, y, sum);
+            }
+            if ix0 == ix1 {
+                continue;
+            }
+            let (c, l, r) = (fv.row(y, ix0, ix1), fv.row(y, ix0 - 1, ix1 - 1), fv.row(y, ix0 + 1, ix1 + 1));
+            let up = (y > frame.y0).then(|| fv.row(y - 1, ix0, ix1));
+            let down = (y + 1 < frame.y1).then(|| fv.row(y + 1, ix0, ix1));
+            let out = g.row_mut(y, ix0, ix1);
+            let n = out.len();
+            let (c, l, r) = (&c[..n], &l[..n], &r[..n]);
+            match (up, down) {
+                (Some(u), Some(d)) => {
+                    let (u, d) = (&u[..n], &d[..n]);
+                    for i in 0..n {
+                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
+                        let v = side_min(half_square(c[i], u[i]), half_square(c[i], d[i]));
+                        out[i] += h + v;
+                    }
+                }
+                (Some(a), None) | (None, Some(a)) => {
+                    let a = &a[..n];
+                    for i in 0..n {
+                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
+                        out[i] += h + half_square(c[i], a[i]);
+                    }
+                }
+                (None, None) => {
+                    for i in 0..n {
+                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
+                        out[i] += h + 0.0;
+                    }
+                }
             }
         }
     }
     g
+}
+
+/// `((c - n) / 2)^2`, one side's squared difference.
+#[inline(always)]
+fn half_square(c: f32, n: f32) -> f32 {
+    let d = (c - n) * 0.5;
+    d * d
+}
+
+/// The smaller of a pixel's two sides on one axis (`a` unless `b < a`).
+#[inline(always)]
+fn side_min(a: f32, b: f32) -> f32 {
+    if b < a { b } else { a }
+}
+
+/// One channel's `min(gL^2, gR^2) + min(gU^2, gD^2)` at `(x, y)`, with the
+/// border rule of [`squared_gradient`].
+fn gradient_at(fv: &Plane, frame: Rect, x: i64, y: i64) -> f32 {
+    let c = fv.get(x, y);
+    let side = |xx: i64, yy: i64| frame.contains(xx, yy).then(|| half_square(c, fv.get(xx, yy)));
+    let pair = |a: Option<f32>, b: Option<f32>| match (a, b) {
+        (Some(a), Some(b)) => side_min(a, b),
+        (Some(a), None) | (None, Some(a)) => a,
+        (None, None) => 0.0,
+    };
+    pair(side(x - 1, y), side(x + 1, y)) + pair(side(x, y - 1), side(x, y + 1))
 }
 
 /// How a feature is turned into a guide.
@@ -126,21 +171,74 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     let planes = if variance.is_some() { n } else { 1 };
     let inv_den = (0..planes)
         .map(|c| {
-            Plane::from_fn(den_rect, |x, y| {
-                let mut m = s.tau;
-                let g = grad.get(x, y);
-                if g > m {
-                    m = g;
-                }
-                if let Some(v) = &variance {
-                    let v = v[c].get(x, y);
-                    if v > m {
-                        m = v;
+            let mut inv = Plane::filled(den_rect, 0.0);
+            for y in den_rect.y0..den_rect.y1 {
+                let (x0, x1) = (den_rect.x0, den_rect.x1);
+                let (g, out) = (grad.row(y, x0, x1), inv.row_mut(y, x0, x1));
+                // `scale / (kf^2 max(tau, G, V))`, the maximum taken in this order.
+                let floor = |g: f32| if g > s.tau { g } else { s.tau };
+                match &variance {
+                    Some(v) => {
+                        let v = &v[c].row(y, x0, x1)[..out.len()];
+                        for ((o, &g), &v) in out.iter_mut().zip(g).zip(v) {
+                            let m = floor(g);
+                            *o = scale / (kf2 * if v > m { v } else { m });
+                        }
+                    }
+                    None => {
+                        for (o, &g) in out.iter_mut().zip(g) {
+                            *o = scale / (kf2 * floor(g));
+                        }
                     }
                 }
-                scale / (kf2 * m)
-            })
+            }
+            inv
         })
         .collect();
     GuideFeature { values, variance, inv_den }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples with every kind of neighbour order, ties, a NaN and an infinity.
+    fn plane(frame: Rect, seed: u32) -> Plane {
+        Plane::from_fn(frame, |x, y| {
+            let h = (x as u32).wrapping_mul(2_654_435_761) ^ (y as u32).wrapping_mul(40_503) ^ seed;
+            match h % 23 {
+                0 => f32::NAN,
+                1 => f32::INFINITY,
+                2 => 0.25,
+                _ => (h % 1000) as f32 * 0.013 - 4.0,
+            }
+        })
+    }
+
+    /// The row loops give the bits of the per-pixel expression on every
+    /// pixel, at the frame's borders and inside, for frames one pixel wide
+    /// or tall and for targets that do not reach the frame's edges.
+    #[test]
+    fn squared_gradient_rows_match_the_per_pixel_expression() {
+        let frames = [
+            Rect::from_origin_size(-3, 5, 17, 9),
+            Rect::from_origin_size(0, 0, 1, 6),
+            Rect::from_origin_size(0, 0, 6, 1),
+            Rect::from_origin_size(2, 2, 2, 2),
+            Rect::from_origin_size(0, 0, 40, 3),
+        ];
+        for frame in frames {
+            let values = [plane(frame, 1), plane(frame, 7)];
+            let targets = [frame, Rect { x0: frame.x0 + 1, y0: frame.y0, x1: frame.x1 - 1, y1: frame.y1 }];
+            for target in targets.into_iter().filter(|t| !t.is_empty()) {
+                let g = squared_gradient(&values, frame, target);
+                for y in target.y0..target.y1 {
+                    for x in target.x0..target.x1 {
+                        let want = values.iter().fold(0.0f32, |s, fv| s + gradient_at(fv, frame, x, y));
+                        assert_eq!(g.get(x, y).to_bits(), want.to_bits(), "({x},{y}) in {frame:?}, target {target:?}");
+                    }
+                }
+            }
+        }
+    }
 }
