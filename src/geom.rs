@@ -116,6 +116,13 @@ impl Rect {
     }
 }
 
+/// The size cutting `total` into as few parts of at most `size` as possible,
+/// all of (nearly) equal size: `ceil(total / ceil(total / size))`.
+pub fn even(total: usize, size: usize) -> usize {
+    let (total, size) = (total.max(1), size.max(1));
+    total.div_ceil(total.div_ceil(size))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

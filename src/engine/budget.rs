@@ -127,12 +127,7 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
     }
 }
 
-/// The size cutting `total` into as few parts of at most `size` as possible,
-/// all of (nearly) equal size: `ceil(total / ceil(total / size))`.
-pub fn even(total: usize, size: usize) -> usize {
-    let (total, size) = (total.max(1), size.max(1));
-    total.div_ceil(total.div_ceil(size))
-}
+pub use crate::geom::even;
 
 /// Make the C allocator return large buffers to the system when they are
 /// freed (Linux glibc): fixes `M_MMAP_THRESHOLD` at 256 KiB, which disables

@@ -19,7 +19,7 @@ use super::kernels::{
 use super::simd;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Tier;
-use crate::geom::Rect;
+use crate::geom::{Rect, even};
 use crate::image::Plane;
 
 /// Block size of the internal schedule (does not change values).
@@ -80,7 +80,9 @@ pub fn nlmeans(
     out: Rect,
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
-    let blocks = out.tiles(BLOCK_W, BLOCK_H);
+    // Blocks of (nearly) equal size, so that the threads finish a tile's
+    // blocks together (the grid does not change a bit of the result).
+    let blocks = out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H));
     let results: Vec<Vec<Vec<Plane>>> = blocks.par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
     let mut outputs: Vec<Vec<Plane>> =
         jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
