@@ -4,6 +4,8 @@
 //! coordinate, so the same code serves a whole frame, a tile with its halo or a
 //! strip.
 
+use half::slice::HalfFloatSliceExt;
+
 use crate::geom::Rect;
 
 /// One channel of `f32` samples covering `rect`, row-major.
@@ -153,10 +155,21 @@ impl Samples {
     /// The samples as `f32`.
     pub fn to_f32(&self) -> Vec<f32> {
         match self {
-            Samples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            Samples::F16(v) => {
+                let mut out = vec![0.0f32; v.len()];
+                v.convert_to_f32_slice(&mut out);
+                out
+            }
             Samples::F32(v) => v.clone(),
             Samples::U32(v) => v.iter().map(|&x| x as f32).collect(),
         }
+    }
+
+    /// `f32` samples rounded to half floats (vectorised where the CPU converts).
+    pub fn half_from_f32(samples: &[f32]) -> Samples {
+        let mut out = vec![half::f16::ZERO; samples.len()];
+        out.convert_from_f32_slice(samples);
+        Samples::F16(out)
     }
 
     /// An empty buffer of the same type with room for `n` samples.

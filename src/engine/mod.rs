@@ -373,10 +373,12 @@ fn filter_band(
     }
     // f32 planes, each converted once and moved into the inputs at its last use.
     let uses = roles.inputs_channels();
+    // Converted on every worker (each channel's rows freed once converted).
+    let converted: Vec<Plane> = pool.install(|| filter_rows.into_par_iter().map(|r| r.to_plane()).collect());
     let mut planes: Vec<(String, Option<Plane>, usize)> = Vec::new();
-    for (&i, r) in cp.filter_idx.iter().zip(filter_rows) {
+    for (&i, plane) in cp.filter_idx.iter().zip(converted) {
         let n = uses.iter().filter(|u| **u == names[i]).count();
-        planes.push((names[i].clone(), Some(r.to_plane()), n));
+        planes.push((names[i].clone(), Some(plane), n));
     }
     let inputs = roles.inputs_with(|n| {
         let slot = planes.iter_mut().find(|(name, _, _)| name == n).expect("role channel read");
@@ -408,12 +410,13 @@ fn filter_band(
     counters.repaired += repaired.into_inner();
     let n_tiles = tiles.len();
     let out_planes = out_planes.into_inner().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
-    for (&i, p) in cp.output_idx.iter().zip(out_planes) {
-        let samples = if half {
-            Samples::F16(p.data().iter().map(|&v| half::f16::from_f32(v)).collect())
-        } else {
-            Samples::F32(p.into_vec())
-        };
+    let samples: Vec<Samples> = pool.install(|| {
+        out_planes
+            .into_par_iter()
+            .map(|p| if half { Samples::half_from_f32(p.data()) } else { Samples::F32(p.into_vec()) })
+            .collect()
+    });
+    for (&i, samples) in cp.output_idx.iter().zip(samples) {
         out[i] = Some(ChannelRows { rect: band, samples });
     }
     for (&i, r) in cp.other_idx.iter().zip(other_rows) {

@@ -66,7 +66,7 @@ impl Channel {
 
     /// A channel from `f32` samples stored as `F16`.
     pub fn from_f32_as_half(name: impl Into<String>, samples: &[f32]) -> Channel {
-        Channel::new(name, Samples::F16(samples.iter().map(|&v| f16::from_f32(v)).collect()))
+        Channel::new(name, Samples::half_from_f32(samples))
     }
 
     /// The samples in their storage type.
