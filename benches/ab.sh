@@ -5,6 +5,7 @@
 #   bash benches/ab.sh alternate ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
 #   bash benches/ab.sh paired    ROUNDS MODE WIDTH HEIGHT BIN_A BIN_B
 #   bash benches/ab.sh interleave PAIRS MODE WIDTH HEIGHT BIN_A BIN_B
+#   bash benches/ab.sh modes ROUNDS - WIDTH HEIGHT BIN MODE...
 #
 # alternate: runs the binaries one after the other, ROUNDS times, and prints
 #   each one's minimum and all its times (RUNS=N runs per process, default 1,
@@ -17,6 +18,10 @@
 #   2 x PAIRS ratios B/A of adjacent runs (RUNS default 1). Adjacent runs
 #   share the load of the same seconds, so this resists slow swings of the
 #   shared host better than `paired`.
+# modes: one binary, its MODEs (colour, layers, features, full) run one
+#   after the other ROUNDS times on each core at once, one thread each;
+#   prints each mode's minimum and all its times (the cost of each part of
+#   the full filter, measured over the same minutes).
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -60,5 +65,19 @@ case "$how" in
       END { printf "pairs %d median B/A %.4f quartiles %.4f %.4f min %.4f max %.4f\n",
             NR, r[int((NR + 1) / 2)], r[int((NR + 3) / 4)], r[int((3 * NR + 1) / 4)], r[1], r[NR] }'
     ;;
-  *) echo "usage: ab.sh alternate|paired|interleave ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
+  modes)
+    bin=$1; shift
+    tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+    for core in 0 1; do
+      for _ in $(seq "$rounds"); do
+        for m in "$@"; do
+          echo "$m $(taskset -c "$core" "$bin" "$m" "$w" "$h" 1 10 "${RUNS:-1}" | cut -d, -f6)"
+        done
+      done > "$tmp/core$core" &
+    done
+    wait
+    cat "$tmp/core0" "$tmp/core1" | awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
+      END { for (k in m) print k, "min", m[k], "all", s[k] }'
+    ;;
+  *) echo "usage: ab.sh alternate|paired|interleave|modes ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
 esac
