@@ -3,14 +3,17 @@
 # kernel change that does not depend on the machine's load, unlike timings.
 #
 #   bash benches/instructions.sh [TIMING_BINARY...]
+#   MODES="colour layers features full" bash benches/instructions.sh ...
 #
-# Runs `examples/timing` (colour-only and full, 480x272, r=10, 1 thread, one
-# run) under `valgrind --tool=callgrind` on the AVX2 tier (valgrind has no
-# AVX-512) and prints, per binary and mode, the instructions of the whole
-# process and of the block kernel alone (`filter_block_avx2` and what it
-# calls). Without arguments it builds and measures the working tree; given
-# timing binaries (e.g. one built from an older commit), it measures each.
-# Needs valgrind (apt-get install valgrind). About 6 minutes per binary.
+# Runs `examples/timing` (colour-only and full, or the modes in MODES;
+# 480x272, r=10, 1 thread, one run) under `valgrind --tool=callgrind` on
+# the AVX2 tier (valgrind has no AVX-512) and prints, per binary and mode,
+# the instructions of the whole process and of the block kernel alone
+# (`filter_block_avx2` and what it calls). Without arguments it builds and
+# measures the working tree; given timing binaries (e.g. one built from an
+# older commit), it measures each. Needs valgrind (apt-get install
+# valgrind). About 6 minutes per binary for the two default modes; all
+# four take about twice as long (layers and full each run two jobs).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v valgrind >/dev/null || { echo "needs valgrind (apt-get install valgrind)"; exit 1; }
@@ -23,7 +26,7 @@ trap 'rm -rf "$out"' EXIT
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
 printf '%-40s %-7s %15s %15s\n' binary mode process kernel
 for bin in "$@"; do
-  for mode in colour full; do
+  for mode in ${MODES:-colour full}; do
     log="$out/$mode.log"
     NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/$mode.cg" \
       "$bin" "$mode" 480 272 1 10 1 >"$log" 2>&1

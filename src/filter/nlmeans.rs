@@ -22,7 +22,8 @@ use super::simd::Tier;
 use crate::geom::{Rect, even};
 use crate::image::Plane;
 
-/// Block size of the internal schedule (does not change values).
+/// Largest block of the internal schedule (does not change values); a
+/// region is cut into blocks of (nearly) equal size up to these.
 const BLOCK_W: usize = 512;
 const BLOCK_H: usize = 128;
 
