@@ -29,7 +29,7 @@ pub struct Feature {
 ///
 /// Row by row: the columns with both horizontal neighbours in the frame in
 /// one loop over slices (vectorised), the frame's first and last columns by
-/// [`gradient_at`]. Every pixel gets the same expression either way.
+/// `gradient_at`. Every pixel gets the same expression either way.
 pub fn squared_gradient(values: &[Plane], frame: Rect, target: Rect) -> Plane {
     let mut g = Plane::filled(target, 0.0);
     // Columns whose left and right neighbours both lie in the frame.
