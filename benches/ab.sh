@@ -25,6 +25,11 @@
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
+# Lines "NAME SECONDS" -> each name's minimum and all its times.
+minima() {
+  awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
+       END { for (k in m) print k, "min", m[k], "all", s[k] }'
+}
 how=$1; rounds=$2; mode=$3; w=$4; h=$5; shift 5
 case "$how" in
   alternate)
@@ -33,8 +38,7 @@ case "$how" in
       for b in "$@"; do
         echo "$b $("$b" "$mode" "$w" "$h" "$threads" 10 "${RUNS:-1}" | cut -d, -f6)"
       done
-    done | awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
-                END { for (k in m) print k, "min", m[k], "all", s[k] }'
+    done | minima
     ;;
   paired)
     a=$1; b=$2
@@ -76,8 +80,7 @@ case "$how" in
       done > "$tmp/core$core" &
     done
     wait
-    cat "$tmp/core0" "$tmp/core1" | awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
-      END { for (k in m) print k, "min", m[k], "all", s[k] }'
+    cat "$tmp/core0" "$tmp/core1" | minima
     ;;
   *) echo "usage: ab.sh alternate|paired|interleave|modes ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
 esac

@@ -12,8 +12,9 @@
 # (`filter_block_avx2` and what it calls). Without arguments it builds and
 # measures the working tree; given timing binaries (e.g. one built from an
 # older commit), it measures each. Needs valgrind (apt-get install
-# valgrind). About 6 minutes per binary for the two default modes; all
-# four take about twice as long (layers and full each run two jobs).
+# valgrind). Several minutes per binary for the two default modes (session
+# 11: 3 minutes for colour alone); all four take about twice as long, by
+# their instruction counts.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v valgrind >/dev/null || { echo "needs valgrind (apt-get install valgrind)"; exit 1; }

@@ -37,7 +37,7 @@ pub fn squared_gradient(values: &[Plane], frame: Rect, target: Rect) -> Plane {
     let ix1 = (frame.x1 - 1).min(target.x1).max(ix0);
     for fv in values {
         for y in target.y0..target.y1 {
-            for x in (target.x0..ix0).chain(ix1.max(target.x0)..target.x1) {
+            for x in (target.x0..ix0).chain(ix1..target.x1) {
                 let sum = g.get(x, y) + gradient_at(fv, frame, x, y);
                 g.set(x, y, sum);
             }
@@ -50,32 +50,30 @@ pub fn squared_gradient(values: &[Plane], frame: Rect, target: Rect) -> Plane {
             let out = g.row_mut(y, ix0, ix1);
             let n = out.len();
             let (c, l, r) = (&c[..n], &l[..n], &r[..n]);
+            let h = |i: usize| side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
+            // One loop per case of vertical neighbours, so that each is branch-free.
             match (up, down) {
                 (Some(u), Some(d)) => {
                     let (u, d) = (&u[..n], &d[..n]);
-                    for i in 0..n {
-                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
-                        let v = side_min(half_square(c[i], u[i]), half_square(c[i], d[i]));
-                        out[i] += h + v;
-                    }
+                    add_rows(out, |i| h(i) + side_min(half_square(c[i], u[i]), half_square(c[i], d[i])));
                 }
                 (Some(a), None) | (None, Some(a)) => {
                     let a = &a[..n];
-                    for i in 0..n {
-                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
-                        out[i] += h + half_square(c[i], a[i]);
-                    }
+                    add_rows(out, |i| h(i) + half_square(c[i], a[i]));
                 }
-                (None, None) => {
-                    for i in 0..n {
-                        let h = side_min(half_square(c[i], l[i]), half_square(c[i], r[i]));
-                        out[i] += h + 0.0;
-                    }
-                }
+                (None, None) => add_rows(out, |i| h(i) + 0.0),
             }
         }
     }
     g
+}
+
+/// `out[i] = out[i] + term(i)` for every sample of the row.
+#[inline(always)]
+fn add_rows(out: &mut [f32], term: impl Fn(usize) -> f32) {
+    for (i, o) in out.iter_mut().enumerate() {
+        *o += term(i);
+    }
 }
 
 /// `((c - n) / 2)^2`, one side's squared difference.
@@ -172,11 +170,11 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     let inv_den = (0..planes)
         .map(|c| {
             let mut inv = Plane::filled(den_rect, 0.0);
+            let (x0, x1) = (den_rect.x0, den_rect.x1);
+            // `scale / (kf^2 max(tau, G, V))`, the maximum taken in this order.
+            let floor = |g: f32| if g > s.tau { g } else { s.tau };
             for y in den_rect.y0..den_rect.y1 {
-                let (x0, x1) = (den_rect.x0, den_rect.x1);
                 let (g, out) = (grad.row(y, x0, x1), inv.row_mut(y, x0, x1));
-                // `scale / (kf^2 max(tau, G, V))`, the maximum taken in this order.
-                let floor = |g: f32| if g > s.tau { g } else { s.tau };
                 match &variance {
                     Some(v) => {
                         let v = &v[c].row(y, x0, x1)[..out.len()];
