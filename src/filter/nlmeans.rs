@@ -81,8 +81,8 @@ pub fn nlmeans(
     out: Rect,
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
-    // Blocks of (nearly) equal size, so that the threads finish a tile's
-    // blocks together (the grid does not change a bit of the result).
+    // Blocks of (nearly) equal size: no sliver block whose borders cost
+    // more than its rows (the grid does not change a bit of the result).
     let blocks = out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H));
     let results: Vec<Vec<Vec<Plane>>> = blocks.par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
     let mut outputs: Vec<Vec<Plane>> =
