@@ -23,9 +23,13 @@ use crate::geom::{Rect, even};
 use crate::image::Plane;
 
 /// Largest block of the internal schedule (does not change values); a
-/// region is cut into blocks of (nearly) equal size up to these.
+/// region is cut into blocks of (nearly) equal size up to these. Tall
+/// blocks recompute fewer border rows: a step's distance rows span the
+/// block's rows plus `4f + dy`. With the default tiles (at most 512, and
+/// 360 rows at 1080p), a tile up to 384 rows is one block
+/// (docs/performance.md, session 12).
 const BLOCK_W: usize = 512;
-const BLOCK_H: usize = 128;
+const BLOCK_H: usize = 384;
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
