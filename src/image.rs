@@ -117,6 +117,45 @@ impl Plane {
     }
 }
 
+/// One channel of half-float samples covering `rect`, row-major: a
+/// [`Plane`] whose every sample is exactly a half float, in half the bytes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HalfPlane {
+    rect: Rect,
+    data: Vec<half::f16>,
+}
+
+impl HalfPlane {
+    /// The plane's samples as half floats, when every one of them is exactly
+    /// a half float (the same bits once widened back); `None` otherwise.
+    pub fn exact(plane: &Plane) -> Option<HalfPlane> {
+        let mut data = vec![half::f16::ZERO; plane.data.len()];
+        data.convert_from_f32_slice(&plane.data);
+        let mut back = [0.0f32; 256];
+        for (h, f) in data.chunks(back.len()).zip(plane.data.chunks(back.len())) {
+            let back = &mut back[..h.len()];
+            h.convert_to_f32_slice(back);
+            if back.iter().zip(f).any(|(b, f)| b.to_bits() != f.to_bits()) {
+                return None;
+            }
+        }
+        Some(HalfPlane { rect: plane.rect, data })
+    }
+
+    /// The rectangle this plane covers.
+    pub fn rect(&self) -> Rect {
+        self.rect
+    }
+
+    /// Samples of row `y` for columns `[x0, x1)`.
+    #[inline(always)]
+    pub fn row(&self, y: i64, x0: i64, x1: i64) -> &[half::f16] {
+        debug_assert!(self.rect.contains(x0, y) && x1 <= self.rect.x1, "row {y} [{x0}, {x1}) outside {:?}", self.rect);
+        let i = (y - self.rect.y0) as usize * self.rect.width() + (x0 - self.rect.x0) as usize;
+        &self.data[i..i + (x1 - x0) as usize]
+    }
+}
+
 /// Samples of one channel in their storage type (carried channels keep their
 /// exact bits; denoised channels are `F32`, or `F16` when asked).
 #[derive(Clone, Debug, PartialEq)]
@@ -215,5 +254,29 @@ impl ChannelRows {
         let mut s = self.samples.empty_like(b - a);
         s.extend_from(&self.samples, a..b);
         ChannelRows { rect: Rect { y0, y1, ..self.rect }, samples: s }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A plane of exact half floats gives its halves, row by row; one
+    /// sample that is not a half (anywhere, also past the first 256) gives none.
+    #[test]
+    fn half_planes_only_of_exact_halves() {
+        let rect = Rect::from_origin_size(-2, 3, 31, 17);
+        let exact = Plane::from_fn(rect, |x, y| half::f16::from_f32(0.37 * x as f32 - 1.1 * y as f32).to_f32());
+        let h = HalfPlane::exact(&exact).expect("every sample is a half");
+        assert_eq!(h.rect(), rect);
+        for y in rect.y0..rect.y1 {
+            let row: Vec<f32> = h.row(y, rect.x0 + 1, rect.x1).iter().map(|v| v.to_f32()).collect();
+            assert_eq!(row, exact.row(y, rect.x0 + 1, rect.x1));
+        }
+        for (x, y) in [(rect.x0, rect.y0), (rect.x1 - 1, rect.y1 - 1)] {
+            let mut p = exact.clone();
+            p.set(x, y, p.get(x, y) + 1e-4);
+            assert!(HalfPlane::exact(&p).is_none(), "({x},{y}) is not a half");
+        }
     }
 }

@@ -4,9 +4,9 @@
 
 use super::kernels::log2_distance_scale;
 use super::nlmeans::{GuideFeature, Job, NlmSettings, nlmeans};
-use super::variance;
+use super::{simd, variance};
 use crate::geom::Rect;
-use crate::image::Plane;
+use crate::image::{HalfPlane, Plane};
 
 /// One feature buffer (normal, albedo, depth, ...).
 #[derive(Clone, Debug)]
@@ -193,7 +193,11 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
             inv
         })
         .collect();
-    GuideFeature { values, variance, inv_den }
+    // Half floats for the square sums, where they are exact and the tier reads them.
+    let half = (variance.is_none() && simd::current() == simd::Tier::Avx512)
+        .then(|| values.iter().map(HalfPlane::exact).collect::<Option<Vec<_>>>())
+        .flatten();
+    GuideFeature { values, variance, inv_den, half }
 }
 
 #[cfg(test)]

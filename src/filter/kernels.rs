@@ -544,6 +544,56 @@ pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_
     }
 }
 
+/// [`feature_square_sum`] of a feature stored as half floats (see
+/// [`HalfPlane`](crate::image::HalfPlane)): each chunk of 16 samples widened
+/// by one `vcvtph2ps` (exact), then the same operations, so the same bits
+/// in half the bytes read.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn feature_square_sum_half_avx512<const C: usize>(
+    out: &mut [f32],
+    fp: [&[half::f16]; C],
+    fq: [&[half::f16]; C],
+) {
+    use std::arch::x86_64::*;
+    let n = out.len();
+    let (mut p, mut q): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
+    for c in 0..C {
+        (p[c], q[c]) = (&fp[c][..n], &fq[c][..n]);
+    }
+    if n < CHUNK {
+        for (i, o) in out.iter_mut().enumerate() {
+            let mut s = 0.0f32;
+            for c in 0..C {
+                s = plain_step(s, p[c][i].to_f32(), q[c][i].to_f32());
+            }
+            *o = s;
+        }
+        return;
+    }
+    // 16 samples of `row` from `i` (`i + CHUNK <= row.len()`), widened.
+    let widen = |row: &[half::f16], i: usize| {
+        debug_assert!(i + CHUNK <= row.len());
+        // SAFETY: the chunk `i..i + CHUNK` lies inside `row` (checked by
+        // the callers' `chunk_start`); an unaligned 32-byte load.
+        unsafe { _mm512_cvtph_ps(_mm256_loadu_si256(row.as_ptr().add(i).cast())) }
+    };
+    for ch in 0..chunk_count(n) {
+        let i = chunk_start(ch, n);
+        let mut s = _mm512_setzero_ps();
+        for c in 0..C {
+            let d = _mm512_sub_ps(widen(p[c], i), widen(q[c], i));
+            s = _mm512_fmadd_ps(d, d, s);
+        }
+        // SAFETY: `i + CHUNK <= n = out.len()`.
+        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), s) };
+    }
+}
+
 /// Sample `i` of the square sum `((0 + d_0^2) + d_1^2) + ...`, `d_c = fp_c - fq_c`.
 #[inline(always)]
 fn square_sum_at<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> f32 {
@@ -655,6 +705,43 @@ mod tests {
     /// The AVX-512 window sums give the bits of the expression every other
     /// tier computes, for rows shorter than, equal to and not a multiple of
     /// a chunk.
+    /// The AVX-512 square sums of half-float rows give the bits of
+    /// [`feature_square_sum`] on the same samples as `f32`, for rows shorter
+    /// than, equal to and not a multiple of a chunk.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn half_square_sums_match_the_f32_kernel() {
+        if !std::arch::is_x86_feature_detected!("avx512f") {
+            eprintln!("skipped: this CPU has no AVX-512F");
+            return;
+        }
+        let mut state = 0x9e37_79b9_u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            // Halves of mixed magnitude and sign.
+            half::f16::from_f32((state as f32 / u32::MAX as f32 - 0.4) * 10f32.powi((state % 5) as i32 - 2))
+        };
+        for n in (1..40).chain([63, 64, 65, 100, 513]) {
+            let rows: Vec<Vec<half::f16>> = (0..6).map(|_| (0..n).map(|_| next()).collect()).collect();
+            let wide: Vec<Vec<f32>> = rows.iter().map(|r| r.iter().map(|h| h.to_f32()).collect()).collect();
+            let (mut got, mut want) = (vec![f32::NAN; n], vec![f32::NAN; n]);
+            // SAFETY: AVX-512F was detected above.
+            unsafe {
+                feature_square_sum_half_avx512::<3>(
+                    &mut got,
+                    [&rows[0], &rows[1], &rows[2]],
+                    [&rows[3], &rows[4], &rows[5]],
+                )
+            };
+            feature_square_sum::<3>(&mut want, [&wide[0], &wide[1], &wide[2]], [&wide[3], &wide[4], &wide[5]]);
+            let (g, w): (Vec<u32>, Vec<u32>) =
+                (got.iter().map(|v| v.to_bits()).collect(), want.iter().map(|v| v.to_bits()).collect());
+            assert_eq!(g, w, "n = {n}");
+        }
+    }
+
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn taps7_sum_avx512_matches_the_pair_sum_expression() {

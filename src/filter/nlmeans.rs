@@ -9,18 +9,18 @@
 use rayon::prelude::*;
 
 use super::column_sums::ColumnBox;
-#[cfg(target_arch = "x86_64")]
-use super::kernels::taps7_sum_avx512;
 use super::kernels::{
     CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
     colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
     fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
 };
+#[cfg(target_arch = "x86_64")]
+use super::kernels::{feature_square_sum_half_avx512, taps7_sum_avx512};
 use super::simd;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Tier;
 use crate::geom::{Rect, even};
-use crate::image::Plane;
+use crate::image::{HalfPlane, Plane};
 
 /// Largest block of the internal schedule (does not change values); a
 /// region is cut into blocks of (nearly) equal size up to these. Tall
@@ -72,6 +72,11 @@ pub struct GuideFeature {
     /// `kernels::exp2_weight`. One plane per channel with a variance; one
     /// plane shared by every channel without (the factor is then the same).
     pub inv_den: Vec<Plane>,
+    /// `values` as half floats, when the feature has no variance and every
+    /// value is exactly a half (a feature the renderer stored as half): the
+    /// AVX-512 tier's square sums read these, the same samples in half the
+    /// bytes. Only an access path: the results do not depend on it.
+    pub half: Option<Vec<HalfPlane>>,
 }
 
 /// Filter every job on `out`; returns, per job, one plane per channel.
@@ -506,7 +511,7 @@ fn run_step<const AVX512: bool>(
             let y = next_w;
             next_w += 1;
             if !features.is_empty() {
-                guide_rows(features, &sides, pairs, y, tf, square_sums);
+                guide_rows::<AVX512>(features, &sides, pairs, y, tf, square_sums);
             }
             for (j, job) in jobs.iter().enumerate() {
                 // Channel mean and `-log2(e)`, folded into the patch mean's scale.
@@ -1116,7 +1121,7 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
 /// into `tf[s * GROUP_MAX + g]`; each feature's `inv_den` already holds
 /// `-log2(e) / channels`): one pass per feature and row, folded by a minimum.
 #[inline(always)]
-fn guide_rows(
+fn guide_rows<const AVX512: bool>(
     features: &[GuideFeature],
     sides: &[Side<'_>; 2],
     pairs: Option<&[PairLane]>,
@@ -1149,7 +1154,7 @@ fn guide_rows(
                     Some(g) if mir_row => Some((sides[1].lanes[g].w, &mut *tf_mir[g])),
                     _ => None,
                 };
-                pair_feature_row(features, (pair.dx, dy), y, fwd, mir, square_sums);
+                pair_feature_row::<AVX512>(features, (pair.dx, dy), y, fwd, mir, square_sums);
             }
         }
     }
@@ -1214,7 +1219,7 @@ fn fold_feature_rows<const C: usize>(
 /// lane's terms as [`fold_feature_row`] does. `square_sums` holds one row
 /// per guide.
 #[inline(always)]
-fn pair_feature_row(
+fn pair_feature_row<const AVX512: bool>(
     features: &[GuideFeature],
     (dx, dy): (i64, i64),
     y: i64,
@@ -1235,10 +1240,10 @@ fn pair_feature_row(
         let out = &mut square_sums[j * w..(j + 1) * w];
         let at = (y, dy, x0, x1, dx);
         match feat.values.len() {
-            1 => square_sum_rows::<1>(out, feat, at),
-            2 => square_sum_rows::<2>(out, feat, at),
-            3 => square_sum_rows::<3>(out, feat, at),
-            4 => square_sum_rows::<4>(out, feat, at),
+            1 => square_sum_rows::<1, AVX512>(out, feat, at),
+            2 => square_sum_rows::<2, AVX512>(out, feat, at),
+            3 => square_sum_rows::<3, AVX512>(out, feat, at),
+            4 => square_sum_rows::<4, AVX512>(out, feat, at),
             _ => {
                 let fp = all_rows(&feat.values, y, x0, x1);
                 let fq = all_rows(&feat.values, y + dy, x0 + dx, x1 + dx);
@@ -1278,13 +1283,25 @@ fn pair_feature_row(
 }
 
 /// One feature's [`feature_square_sum`] on row `y` (columns `x0..x1`) for
-/// offset `(dx, dy)`, the feature's `C` channels as arrays.
+/// offset `(dx, dy)`, the feature's `C` channels as arrays; on the AVX-512
+/// tier from its half floats when it has them (the same bits).
 #[inline(always)]
-fn square_sum_rows<const C: usize>(
+fn square_sum_rows<const C: usize, const AVX512: bool>(
     out: &mut [f32],
     feat: &GuideFeature,
     (y, dy, x0, x1, dx): (i64, i64, i64, i64, i64),
 ) {
+    #[cfg(target_arch = "x86_64")]
+    if let (true, Some(half)) = (AVX512, &feat.half) {
+        let (mut fp, mut fq): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
+        for c in 0..C {
+            (fp[c], fq[c]) = (half[c].row(y, x0, x1), half[c].row(y + dy, x0 + dx, x1 + dx));
+        }
+        // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
+        // which runs only on CPUs with avx512f.
+        unsafe { feature_square_sum_half_avx512::<C>(out, fp, fq) };
+        return;
+    }
     feature_square_sum::<C>(
         out,
         channel_rows(&feat.values, y, x0, x1),

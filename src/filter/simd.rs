@@ -4,10 +4,12 @@
 //! Every tier compiles the *same* Rust code (`nlmeans::filter_block_body`)
 //! with a different set of target features, so every pixel gets the same
 //! IEEE operations in the same order whichever tier or lane computes it: the
-//! wider tiers only put more pixels in a register. One kernel is written for
-//! the AVX-512 tier alone, `kernels::taps7_sum_avx512` (the horizontal window
-//! sums for `f = 3`): it computes the same expression of the same samples,
-//! forming the shifted operands in registers instead of loading them. The kernel's fused
+//! wider tiers only put more pixels in a register. Two kernels are written
+//! for the AVX-512 tier alone, each computing the same expression of the same
+//! samples: `kernels::taps7_sum_avx512` (the horizontal window sums for
+//! `f = 3`) forms the shifted operands in registers instead of loading them,
+//! and `kernels::feature_square_sum_half_avx512` reads a guide stored as
+//! exact half floats, widened exactly. The kernel's fused
 //! multiply-adds are written as `f32::mul_add`, one correctly rounded
 //! operation on every tier: the AVX2 and AVX-512 tiers are compiled with
 //! `fma` (and require it), the portable tier calls the target's fused

@@ -94,12 +94,14 @@ pub fn frame_inputs(frame: Rect, seed: u64, kinds: Kinds) -> FrameInputs {
         let avar: Vec<Plane> = (0..3).map(|_| var_plane(&mut rng, 1e-4)).collect();
         let albedo = (0..3).map(|c| noisy_plane(frame, &mut rng, albedo_base(c), &avar[c])).collect();
         features.push(Feature { name: "albedo".into(), values: albedo, variance: Some(avar) });
+        // Exact half floats, as a renderer storing normals as half writes
+        // them (the AVX-512 tier then reads them as halves).
         let normal = (0..3)
             .map(|c| {
-                Plane::from_fn(
-                    frame,
-                    |x, y| if x < edge_x { [0.0, 1.0, 0.0][c] } else { [0.7, 0.0, 0.7][c] } + 0.01 * (y % 3) as f32,
-                )
+                Plane::from_fn(frame, |x, y| {
+                    let v = if x < edge_x { [0.0, 1.0, 0.0][c] } else { [0.7, 0.0, 0.7][c] } + 0.01 * (y % 3) as f32;
+                    half::f16::from_f32(v).to_f32()
+                })
             })
             .collect();
         features.push(Feature { name: "N".into(), values: normal, variance: None });
