@@ -6,6 +6,7 @@
 #   bash benches/ab.sh paired    ROUNDS MODE WIDTH HEIGHT BIN_A BIN_B
 #   bash benches/ab.sh interleave PAIRS MODE WIDTH HEIGHT BIN_A BIN_B
 #   bash benches/ab.sh modes ROUNDS - WIDTH HEIGHT BIN MODE...
+#   bash benches/ab.sh cpus ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
 #
 # alternate: runs the binaries one after the other, ROUNDS times, and prints
 #   each one's minimum and all its times (RUNS=N runs per process, default 1,
@@ -22,6 +23,10 @@
 #   after the other ROUNDS times on each core at once, one thread each;
 #   prints each mode's minimum and all its times (the cost of each part of
 #   the full filter, measured over the same minutes).
+# cpus: how many CPUs each binary keeps busy while it filters: `perf stat`'s
+#   task-clock and the wall time of one process with 1 run and one with 5;
+#   the 4 extra runs' CPU time over their wall time (the frame's synthesis,
+#   single-threaded, cancels out). ROUNDS times, binaries in turn.
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -82,5 +87,25 @@ case "$how" in
     wait
     cat "$tmp/core0" "$tmp/core1" | minima
     ;;
-  *) echo "usage: ab.sh alternate|paired|interleave|modes ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
+  cpus)
+    threads=$1; shift
+    tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+    # Prints "task-clock-ms wall-ms" of one process making N runs.
+    measure() {
+      local s e
+      s=$(date +%s%N)
+      perf stat -e task-clock -x, -o "$tmp/stat" "$1" "$mode" "$w" "$h" "$threads" 10 "$2" >/dev/null
+      e=$(date +%s%N)
+      echo "$(grep task-clock "$tmp/stat" | cut -d, -f1) $(( (e - s) / 1000000 ))"
+    }
+    for _ in $(seq "$rounds"); do
+      for b in "$@"; do
+        read -r t1 w1 < <(measure "$b" 1)
+        read -r t5 w5 < <(measure "$b" 5)
+        awk -v b="$b" -v t1="$t1" -v w1="$w1" -v t5="$t5" -v w5="$w5" \
+          'BEGIN { printf "%s cpus %.3f, %.3f s per extra run\n", b, (t5 - t1) / (w5 - w1), (w5 - w1) / 4000 }'
+      done
+    done
+    ;;
+  *) echo "usage: ab.sh alternate|paired|interleave|modes|cpus ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
 esac

@@ -23,13 +23,14 @@ use crate::geom::{Rect, even};
 use crate::image::{HalfPlane, Plane};
 
 /// Largest block of the internal schedule (does not change values); a
-/// region is cut into blocks of (nearly) equal size up to these. Tall
-/// blocks recompute fewer border rows: a step's distance rows span the
-/// block's rows plus `4f + dy`. With the default tiles (at most 512, and
-/// 360 rows at 1080p), a tile up to 384 rows is one block
+/// region is cut into blocks of (nearly) equal size up to these. Taller
+/// blocks recompute fewer border rows (a step's distance rows span the
+/// block's rows plus `4f + dy`) but give the pool fewer tasks per band: 384
+/// rows (one block per 1080p tile) left more of two cores idle than it
+/// saved. 192 rows cut a 360-row tile (1080p) into two blocks of 180
 /// (docs/performance.md, session 12).
 const BLOCK_W: usize = 512;
-const BLOCK_H: usize = 384;
+const BLOCK_H: usize = 192;
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
