@@ -702,9 +702,6 @@ fn variance_step(a: f32, p: f32, q: f32, vp: f32, vq: f32, inv: f32) -> f32 {
 mod tests {
     use super::*;
 
-    /// The AVX-512 window sums give the bits of the expression every other
-    /// tier computes, for rows shorter than, equal to and not a multiple of
-    /// a chunk.
     /// The AVX-512 square sums of half-float rows give the bits of
     /// [`feature_square_sum`] on the same samples as `f32`, for rows shorter
     /// than, equal to and not a multiple of a chunk.
@@ -742,6 +739,9 @@ mod tests {
         }
     }
 
+    /// The AVX-512 window sums give the bits of the expression every other
+    /// tier computes, for rows shorter than, equal to and not a multiple of
+    /// a chunk.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn taps7_sum_avx512_matches_the_pair_sum_expression() {
