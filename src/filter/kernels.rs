@@ -702,24 +702,42 @@ fn variance_step(a: f32, p: f32, q: f32, vp: f32, vq: f32, inv: f32) -> f32 {
 mod tests {
     use super::*;
 
+    /// Whether the CPU has AVX-512F (the test says it skipped when not).
+    #[cfg(target_arch = "x86_64")]
+    fn avx512_or_skip() -> bool {
+        let has = std::arch::is_x86_feature_detected!("avx512f");
+        if !has {
+            eprintln!("skipped: this CPU has no AVX-512F");
+        }
+        has
+    }
+
+    /// Pseudo-random values (xorshift from `seed`) in `[-shift, 1 - shift)`
+    /// times a power of ten from `10^-(decades / 2)` on, `decades` of them:
+    /// mixed signs and magnitudes, so that the order of operations shows.
+    #[cfg(target_arch = "x86_64")]
+    fn mixed_values(seed: u32, shift: f32, decades: u32) -> impl FnMut() -> f32 {
+        let mut state = seed;
+        move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            (state as f32 / u32::MAX as f32 - shift) * 10f32.powi((state % decades) as i32 - (decades / 2) as i32)
+        }
+    }
+
     /// The AVX-512 square sums of half-float rows give the bits of
     /// [`feature_square_sum`] on the same samples as `f32`, for rows shorter
     /// than, equal to and not a multiple of a chunk.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn half_square_sums_match_the_f32_kernel() {
-        if !std::arch::is_x86_feature_detected!("avx512f") {
-            eprintln!("skipped: this CPU has no AVX-512F");
+        if !avx512_or_skip() {
             return;
         }
-        let mut state = 0x9e37_79b9_u32;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            // Halves of mixed magnitude and sign.
-            half::f16::from_f32((state as f32 / u32::MAX as f32 - 0.4) * 10f32.powi((state % 5) as i32 - 2))
-        };
+        // Halves of mixed magnitude and sign.
+        let mut values = mixed_values(0x9e37_79b9, 0.4, 5);
+        let mut next = || half::f16::from_f32(values());
         for n in (1..40).chain([63, 64, 65, 100, 513]) {
             let rows: Vec<Vec<half::f16>> = (0..6).map(|_| (0..n).map(|_| next()).collect()).collect();
             let wide: Vec<Vec<f32>> = rows.iter().map(|r| r.iter().map(|h| h.to_f32()).collect()).collect();
@@ -745,18 +763,11 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn taps7_sum_avx512_matches_the_pair_sum_expression() {
-        if !std::arch::is_x86_feature_detected!("avx512f") {
-            eprintln!("skipped: this CPU has no AVX-512F");
+        if !avx512_or_skip() {
             return;
         }
-        let mut state = 0x2545_f491_u32;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            // Values of mixed magnitude and sign, so that the order of the adds shows.
-            (state as f32 / u32::MAX as f32 - 0.3) * 10f32.powi((state % 7) as i32 - 3)
-        };
+        // Values of mixed magnitude and sign, so that the order of the adds shows.
+        let mut next = mixed_values(0x2545_f491, 0.3, 7);
         for n in (1..50).chain([63, 64, 65, 100, 513]) {
             let src: Vec<f32> = (0..n + 6).map(|_| next()).collect();
             let mut out = vec![f32::NAN; n];
