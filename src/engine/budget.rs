@@ -10,7 +10,8 @@
 //!   the band; `depth + 1` of them queued or being read, one being filtered;
 //! * the filter stage's `f32` planes of the filter channels over the window;
 //! * tile working sets: `threads × 4 × (tile + 2h) × window × filter_planes × 4`
-//!   (cropped inputs plus the filter's intermediates);
+//!   (cropped inputs plus the filter's intermediates, the guides' half-float
+//!   copies counted as half a plane per feature channel);
 //! * band outputs (`f32` denoised channels plus the rest), `depth + 2` of them
 //!   in flight;
 //! * the writer: rows waiting for their block, plus one band's raw block bytes

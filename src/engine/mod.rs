@@ -189,7 +189,11 @@ fn plan_with(
             filter_channels: cp.filter_idx.len(),
             bytes_filter: cp.filter_idx.iter().map(|&i| sample_bytes[i]).sum(),
             output_channels: cp.output_idx.len(),
-            filter_planes: cp.filter_idx.len() + 2 * cp.output_idx.len(),
+            // Plus the guides' half-float copies (`nlmeans::GuideFeature::half`):
+            // half a plane per feature channel.
+            filter_planes: cp.filter_idx.len()
+                + 2 * cp.output_idx.len()
+                + roles.features.iter().map(|f| f.channels.len()).sum::<usize>().div_ceil(2),
             block_rows: source.block_rows(),
             out_block_rows: opts.out_block_rows,
             threads,
