@@ -130,9 +130,10 @@ impl HalfPlane {
     /// a half float (the same bits once widened back); `None` otherwise.
     pub fn exact(plane: &Plane) -> Option<HalfPlane> {
         let mut data = vec![half::f16::ZERO; plane.data.len()];
-        data.convert_from_f32_slice(&plane.data);
         let mut back = [0.0f32; 256];
-        for (h, f) in data.chunks(back.len()).zip(plane.data.chunks(back.len())) {
+        // Chunk by chunk, so that a plane of other values stops at its first chunk.
+        for (h, f) in data.chunks_mut(back.len()).zip(plane.data.chunks(back.len())) {
+            h.convert_from_f32_slice(f);
             let back = &mut back[..h.len()];
             h.convert_to_f32_slice(back);
             if back.iter().zip(f).any(|(b, f)| b.to_bits() != f.to_bits()) {

@@ -193,8 +193,10 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
             inv
         })
         .collect();
-    // Half floats for the square sums, where they are exact and the tier reads them.
-    let half = (variance.is_none() && simd::current() == simd::Tier::Avx512)
+    // Half floats for the square sums, where they are exact and the tier
+    // reads them (features of 1 to 4 channels without variance, see
+    // `nlmeans::pair_feature_row`).
+    let half = (variance.is_none() && n <= 4 && simd::current() == simd::Tier::Avx512)
         .then(|| values.iter().map(HalfPlane::exact).collect::<Option<Vec<_>>>())
         .flatten();
     GuideFeature { values, variance, inv_den, half }
