@@ -130,20 +130,37 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
 
 pub use crate::geom::even;
 
-/// Make the C allocator return large buffers to the system when they are
-/// freed (Linux glibc): fixes `M_MMAP_THRESHOLD` at 256 KiB, which disables
-/// glibc's dynamic threshold. Without it, after the first large free glibc
-/// serves multi-MiB buffers from per-thread arenas that keep freed memory,
-/// and the resident set can exceed the budget by half (measured: 436 MiB
-/// instead of 274 MiB on a 16384-wide frame). The CLI calls this at start;
-/// embedders who want the budget to hold should call it once too. It changes
+/// Keep the C allocator's resident set within the budget without a page
+/// fault per fresh buffer (Linux glibc). Two settings, both measured
+/// (docs/performance.md, "Bounded memory"):
+///
+/// - `M_MMAP_THRESHOLD = 1 MiB`, which also disables glibc's dynamic
+///   threshold: larger buffers (a band's planes) are mapped on allocation
+///   and unmapped on free. Without it, after the first large free glibc
+///   served multi-MiB buffers from arenas that kept them, and the resident
+///   set exceeded the budget by half (436 MiB instead of 274 MiB on a
+///   16384-wide frame).
+/// - `M_ARENA_MAX = 1`: every thread allocates from one arena, so the
+///   buffers below the threshold (a tile's planes, a block's accumulators)
+///   that one thread frees serve the next allocations, whichever thread
+///   makes them.
+///
+/// With the earlier 256 KiB threshold and an arena per thread, every
+/// block's and tile's buffers were fresh pages, each page a fault and each
+/// free a TLB shootdown. Against that, a 1080p file run takes 12 % less
+/// time; the peak on 16384-wide frames rose from about 252 MiB to 267-278
+/// MiB, under the budget's estimate.
+///
+/// The CLI calls this at start, before it starts any thread; embedders who
+/// want the budget to hold should call it once too, as early. It changes
 /// process-wide allocator policy; elsewhere it does nothing.
 pub fn bound_allocator() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only adjusts glibc's allocator parameters; it is
     // thread-safe and has no memory-safety preconditions.
     unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 256 * 1024);
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
     }
 }
 
