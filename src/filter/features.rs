@@ -196,7 +196,8 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     // Half floats for the square sums, where they are exact and the tier
     // reads them (features of 1 to 4 channels without variance, see
     // `nlmeans::pair_feature_row`).
-    let half = (variance.is_none() && n <= 4 && simd::current() == simd::Tier::Avx512)
+    let wide = matches!(simd::current(), simd::Tier::Avx2 | simd::Tier::Avx512);
+    let half = (variance.is_none() && n <= 4 && wide)
         .then(|| values.iter().map(HalfPlane::exact).collect::<Option<Vec<_>>>())
         .flatten();
     GuideFeature { values, variance, inv_den, half }

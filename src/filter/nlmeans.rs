@@ -15,7 +15,7 @@ use super::kernels::{
     fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
-use super::kernels::{feature_square_sum_half_avx512, taps7_sum_avx512};
+use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512, taps7_sum_avx512};
 use super::simd;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Tier;
@@ -75,8 +75,8 @@ pub struct GuideFeature {
     pub inv_den: Vec<Plane>,
     /// `values` as half floats, when the feature has no variance and every
     /// value is exactly a half (a feature the renderer stored as half): the
-    /// AVX-512 tier's square sums read these, the same samples in half the
-    /// bytes. Only an access path: the results do not depend on it.
+    /// AVX2 and AVX-512 tiers' square sums read these, the same samples in
+    /// half the bytes. Only an access path: the results do not depend on it.
     pub half: Option<Vec<HalfPlane>>,
 }
 
@@ -161,9 +161,9 @@ fn filter_block(
         // SAFETY: `simd::current` returns AVX-512 only when the CPU has avx512f.
         Tier::Avx512 => unsafe { filter_block_avx512(jobs, features, frame, block, s) },
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `simd::current` returns AVX2 only when the CPU has avx2.
+        // SAFETY: `simd::current` returns AVX2 only when the CPU has avx2, fma and f16c.
         Tier::Avx2 => unsafe { filter_block_avx2(jobs, features, frame, block, s) },
-        _ => filter_block_body::<false>(jobs, features, frame, block, s),
+        _ => filter_block_body::<false, false>(jobs, features, frame, block, s),
     }
 }
 
@@ -179,12 +179,12 @@ macro_rules! tier_wrapper {
             block: Rect,
             s: &NlmSettings,
         ) -> Vec<Vec<Plane>> {
-            filter_block_body::<$wide>(jobs, features, frame, block, s)
+            filter_block_body::<$wide, true>(jobs, features, frame, block, s)
         }
     };
 }
 
-tier_wrapper!(filter_block_avx2, "avx2,fma", false);
+tier_wrapper!(filter_block_avx2, "avx2,fma,f16c", false);
 tier_wrapper!(filter_block_avx512, "avx512f,fma", true);
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
@@ -222,7 +222,7 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma", true);
 /// coordinate. The same operations for a pixel whichever block, tile or
 /// lane computes it.
 #[inline(always)]
-fn filter_block_body<const AVX512: bool>(
+fn filter_block_body<const AVX512: bool, const AVX2: bool>(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
     frame: Rect,
@@ -285,7 +285,7 @@ fn filter_block_body<const AVX512: bool>(
                 }
             }
             let sides = [Side::new(&group[..g], dy, 0), Side::new(&[], -dy, dy)];
-            run_step::<AVX512>(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
+            run_step::<AVX512, AVX2>(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
             continue;
         }
         // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
@@ -325,7 +325,7 @@ fn filter_block_body<const AVX512: bool>(
             continue;
         }
         let sides = [Side::new(&fwd[..nf], dy, 0), Side::new(&mir[..nm], -dy, dy)];
-        run_step::<AVX512>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
+        run_step::<AVX512, AVX2>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
     }
 
     num.into_iter()
@@ -437,7 +437,7 @@ fn in_rows(rows: (i64, i64), y: i64) -> bool {
 /// terms before the forward group's (`dy > 0`: the mirror reaches the row
 /// first; `dy = 0`: forward, then mirror), a fixed order for every block.
 #[inline(always)]
-fn run_step<const AVX512: bool>(
+fn run_step<const AVX512: bool, const AVX2: bool>(
     ctx: &StepCtx<'_, '_>,
     num: &mut [Vec<Aligned>],
     den: &mut [Aligned],
@@ -512,7 +512,7 @@ fn run_step<const AVX512: bool>(
             let y = next_w;
             next_w += 1;
             if !features.is_empty() {
-                guide_rows::<AVX512>(features, &sides, pairs, y, tf, square_sums);
+                guide_rows::<AVX512, AVX2>(features, &sides, pairs, y, tf, square_sums);
             }
             for (j, job) in jobs.iter().enumerate() {
                 // Channel mean and `-log2(e)`, folded into the patch mean's scale.
@@ -1122,7 +1122,7 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
 /// into `tf[s * GROUP_MAX + g]`; each feature's `inv_den` already holds
 /// `-log2(e) / channels`): one pass per feature and row, folded by a minimum.
 #[inline(always)]
-fn guide_rows<const AVX512: bool>(
+fn guide_rows<const AVX512: bool, const AVX2: bool>(
     features: &[GuideFeature],
     sides: &[Side<'_>; 2],
     pairs: Option<&[PairLane]>,
@@ -1155,7 +1155,7 @@ fn guide_rows<const AVX512: bool>(
                     Some(g) if mir_row => Some((sides[1].lanes[g].w, &mut *tf_mir[g])),
                     _ => None,
                 };
-                pair_feature_row::<AVX512>(features, (pair.dx, dy), y, fwd, mir, square_sums);
+                pair_feature_row::<AVX512, AVX2>(features, (pair.dx, dy), y, fwd, mir, square_sums);
             }
         }
     }
@@ -1220,7 +1220,7 @@ fn fold_feature_rows<const C: usize>(
 /// lane's terms as [`fold_feature_row`] does. `square_sums` holds one row
 /// per guide.
 #[inline(always)]
-fn pair_feature_row<const AVX512: bool>(
+fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
     features: &[GuideFeature],
     (dx, dy): (i64, i64),
     y: i64,
@@ -1241,10 +1241,10 @@ fn pair_feature_row<const AVX512: bool>(
         let out = &mut square_sums[j * w..(j + 1) * w];
         let at = (y, dy, x0, x1, dx);
         match feat.values.len() {
-            1 => square_sum_rows::<1, AVX512>(out, feat, at),
-            2 => square_sum_rows::<2, AVX512>(out, feat, at),
-            3 => square_sum_rows::<3, AVX512>(out, feat, at),
-            4 => square_sum_rows::<4, AVX512>(out, feat, at),
+            1 => square_sum_rows::<1, AVX512, AVX2>(out, feat, at),
+            2 => square_sum_rows::<2, AVX512, AVX2>(out, feat, at),
+            3 => square_sum_rows::<3, AVX512, AVX2>(out, feat, at),
+            4 => square_sum_rows::<4, AVX512, AVX2>(out, feat, at),
             _ => {
                 let fp = all_rows(&feat.values, y, x0, x1);
                 let fq = all_rows(&feat.values, y + dy, x0 + dx, x1 + dx);
@@ -1287,20 +1287,26 @@ fn pair_feature_row<const AVX512: bool>(
 /// offset `(dx, dy)`, the feature's `C` channels as arrays; on the AVX-512
 /// tier from its half floats when it has them (the same bits).
 #[inline(always)]
-fn square_sum_rows<const C: usize, const AVX512: bool>(
+fn square_sum_rows<const C: usize, const AVX512: bool, const AVX2: bool>(
     out: &mut [f32],
     feat: &GuideFeature,
     (y, dy, x0, x1, dx): (i64, i64, i64, i64, i64),
 ) {
     #[cfg(target_arch = "x86_64")]
-    if let (true, Some(half)) = (AVX512, &feat.half) {
+    if let (true, Some(half)) = (AVX512 || AVX2, &feat.half) {
         let (mut fp, mut fq): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
         for c in 0..C {
             (fp[c], fq[c]) = (half[c].row(y, x0, x1), half[c].row(y + dy, x0 + dx, x1 + dx));
         }
-        // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
-        // which runs only on CPUs with avx512f.
-        unsafe { feature_square_sum_half_avx512::<C>(out, fp, fq) };
+        if AVX512 {
+            // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
+            // which runs only on CPUs with avx512f.
+            unsafe { feature_square_sum_half_avx512::<C>(out, fp, fq) };
+        } else {
+            // SAFETY: `AVX2` (without `AVX512`) is true only in the AVX2
+            // tier's wrapper, which runs only on CPUs with avx2, fma and f16c.
+            unsafe { feature_square_sum_half_avx2::<C>(out, fp, fq) };
+        }
         return;
     }
     feature_square_sum::<C>(

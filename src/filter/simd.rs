@@ -5,11 +5,12 @@
 //! with a different set of target features, so every pixel gets the same
 //! IEEE operations in the same order whichever tier or lane computes it: the
 //! wider tiers only put more pixels in a register. Two kernels are written
-//! for the AVX-512 tier alone, each computing the same expression of the same
+//! for the AVX-512 tier, each computing the same expression of the same
 //! samples: `kernels::taps7_sum_avx512` (the horizontal window sums for
 //! `f = 3`) forms the shifted operands in registers instead of loading them,
 //! and `kernels::feature_square_sum_half_avx512` reads a guide stored as
-//! exact half floats, widened exactly. The kernel's fused
+//! exact half floats, widened exactly (as the AVX2 tier's
+//! `kernels::feature_square_sum_half_avx2` does, 8 at a time). The kernel's fused
 //! multiply-adds are written as `f32::mul_add`, one correctly rounded
 //! operation on every tier: the AVX2 and AVX-512 tiers are compiled with
 //! `fma` (and require it), the portable tier calls the target's fused
@@ -30,7 +31,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub enum Tier {
     /// The baseline target (SSE2 on x86-64).
     Portable,
-    /// AVX2 (8 lanes).
+    /// AVX2 with FMA and F16C (8 lanes; every AVX2 CPU has the other two).
     Avx2,
     /// AVX-512F (16 lanes).
     Avx512,
@@ -45,7 +46,11 @@ impl Tier {
         match self {
             Tier::Portable => true,
             #[cfg(target_arch = "x86_64")]
-            Tier::Avx2 => std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"),
+            Tier::Avx2 => {
+                std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+                    && std::arch::is_x86_feature_detected!("f16c")
+            }
             #[cfg(target_arch = "x86_64")]
             Tier::Avx512 => {
                 std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma")
