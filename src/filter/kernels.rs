@@ -544,6 +544,34 @@ pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_
     }
 }
 
+/// The half kernels' rows cut to `out.len()` samples, or `None` when the row
+/// is shorter than a chunk, after writing its square sums one sample at a
+/// time (the same operations).
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn half_rows_of_chunks<'a, const C: usize>(
+    out: &mut [f32],
+    fp: [&'a [half::f16]; C],
+    fq: [&'a [half::f16]; C],
+) -> Option<([&'a [half::f16]; C], [&'a [half::f16]; C])> {
+    let n = out.len();
+    let (mut p, mut q): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
+    for c in 0..C {
+        (p[c], q[c]) = (&fp[c][..n], &fq[c][..n]);
+    }
+    if n >= CHUNK {
+        return Some((p, q));
+    }
+    for (i, o) in out.iter_mut().enumerate() {
+        let mut s = 0.0f32;
+        for c in 0..C {
+            s = plain_step(s, p[c][i].to_f32(), q[c][i].to_f32());
+        }
+        *o = s;
+    }
+    None
+}
+
 /// [`feature_square_sum`] of a feature stored as half floats (see
 /// [`HalfPlane`](crate::image::HalfPlane)): each chunk of 16 samples widened
 /// by one `vcvtph2ps` (exact), then the same operations, so the same bits
@@ -561,20 +589,7 @@ pub unsafe fn feature_square_sum_half_avx512<const C: usize>(
 ) {
     use std::arch::x86_64::*;
     let n = out.len();
-    let (mut p, mut q): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
-    for c in 0..C {
-        (p[c], q[c]) = (&fp[c][..n], &fq[c][..n]);
-    }
-    if n < CHUNK {
-        for (i, o) in out.iter_mut().enumerate() {
-            let mut s = 0.0f32;
-            for c in 0..C {
-                s = plain_step(s, p[c][i].to_f32(), q[c][i].to_f32());
-            }
-            *o = s;
-        }
-        return;
-    }
+    let Some((p, q)) = half_rows_of_chunks(out, fp, fq) else { return };
     // 16 samples of `row` from `i` (`i + CHUNK <= row.len()`), widened.
     let widen = |row: &[half::f16], i: usize| {
         debug_assert!(i + CHUNK <= row.len());
@@ -610,20 +625,7 @@ pub unsafe fn feature_square_sum_half_avx2<const C: usize>(
 ) {
     use std::arch::x86_64::*;
     let n = out.len();
-    let (mut p, mut q): ([&[half::f16]; C], [&[half::f16]; C]) = ([&[]; C], [&[]; C]);
-    for c in 0..C {
-        (p[c], q[c]) = (&fp[c][..n], &fq[c][..n]);
-    }
-    if n < CHUNK {
-        for (i, o) in out.iter_mut().enumerate() {
-            let mut s = 0.0f32;
-            for c in 0..C {
-                s = plain_step(s, p[c][i].to_f32(), q[c][i].to_f32());
-            }
-            *o = s;
-        }
-        return;
-    }
+    let Some((p, q)) = half_rows_of_chunks(out, fp, fq) else { return };
     // 8 samples of `row` from `i` (`i + 8 <= row.len()`), widened.
     let widen = |row: &[half::f16], i: usize| {
         debug_assert!(i + CHUNK / 2 <= row.len());

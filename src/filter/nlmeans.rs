@@ -169,7 +169,7 @@ fn filter_block(
 
 /// One wrapper per tier: the same body compiled with the tier's target feature.
 macro_rules! tier_wrapper {
-    ($name:ident, $feature:literal, $wide:literal) => {
+    ($name:ident, $feature:literal, $avx512:literal, $avx2:literal) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $feature)]
         fn $name(
@@ -179,16 +179,18 @@ macro_rules! tier_wrapper {
             block: Rect,
             s: &NlmSettings,
         ) -> Vec<Vec<Plane>> {
-            filter_block_body::<$wide, true>(jobs, features, frame, block, s)
+            filter_block_body::<$avx512, $avx2>(jobs, features, frame, block, s)
         }
     };
 }
 
-tier_wrapper!(filter_block_avx2, "avx2,fma,f16c", false);
-tier_wrapper!(filter_block_avx512, "avx512f,fma", true);
+tier_wrapper!(filter_block_avx2, "avx2,fma,f16c", false, true);
+tier_wrapper!(filter_block_avx512, "avx512f,fma", true, false);
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
-/// kernel it inlines) is compiled for that tier's instruction set.
+/// kernel it inlines) is compiled for that tier's instruction set. `AVX512`
+/// is true in the AVX-512 tier's wrapper only, `AVX2` in the AVX2 tier's
+/// only: they select the kernels written for one tier (the same bits).
 ///
 /// The offsets are visited as [`offset_schedule`] lists them: the centre,
 /// then steps of up to [`GROUP_MAX`] offsets `n` sharing `dy >= 0`, each
@@ -1303,8 +1305,8 @@ fn square_sum_rows<const C: usize, const AVX512: bool, const AVX2: bool>(
             // which runs only on CPUs with avx512f.
             unsafe { feature_square_sum_half_avx512::<C>(out, fp, fq) };
         } else {
-            // SAFETY: `AVX2` (without `AVX512`) is true only in the AVX2
-            // tier's wrapper, which runs only on CPUs with avx2, fma and f16c.
+            // SAFETY: `AVX2` is true only in the AVX2 tier's wrapper,
+            // which runs only on CPUs with avx2, fma and f16c.
             unsafe { feature_square_sum_half_avx2::<C>(out, fp, fq) };
         }
         return;
