@@ -10,8 +10,8 @@
 //! `f = 3`) forms the shifted operands in registers instead of loading them,
 //! and `kernels::feature_square_sum_half_avx512` reads a guide stored as
 //! exact half floats, widened exactly (as the AVX2 tier's
-//! `kernels::feature_square_sum_half_avx2` does, 8 at a time). The kernel's fused
-//! multiply-adds are written as `f32::mul_add`, one correctly rounded
+//! `kernels::feature_square_sum_half_avx2` does, 8 at a time). The kernel's
+//! fused multiply-adds are written as `f32::mul_add`, one correctly rounded
 //! operation on every tier: the AVX2 and AVX-512 tiers are compiled with
 //! `fma` (and require it), the portable tier calls the target's fused
 //! instruction where its baseline has one (aarch64) and libm's `fmaf`
