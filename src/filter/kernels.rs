@@ -788,10 +788,7 @@ mod tests {
     fn half_square_sums_match_the_f32_kernel() {
         type Kernel = unsafe fn(&mut [f32], [&[half::f16]; 3], [&[half::f16]; 3]);
         let mut kernels: Vec<(&str, Kernel)> = Vec::new();
-        if std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma")
-            && std::arch::is_x86_feature_detected!("f16c")
-        {
+        if crate::filter::simd::Tier::Avx2.available() {
             kernels.push(("avx2", feature_square_sum_half_avx2::<3>));
         }
         if avx512_or_skip() {
