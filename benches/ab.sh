@@ -7,6 +7,7 @@
 #   bash benches/ab.sh interleave PAIRS MODE WIDTH HEIGHT BIN_A BIN_B
 #   bash benches/ab.sh modes ROUNDS - WIDTH HEIGHT BIN MODE...
 #   bash benches/ab.sh cpus ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
+#   bash benches/ab.sh files ROUNDS - WIDTH HEIGHT THREADS NLDENOISE_A NLDENOISE_B...
 #
 # alternate: runs the binaries one after the other, ROUNDS times, and prints
 #   each one's minimum and all its times (RUNS=N runs per process, default 1,
@@ -27,6 +28,12 @@
 #   task-clock and the wall time of one process with 1 run and one with 5;
 #   the 4 extra runs' CPU time over their wall time (the frame's synthesis,
 #   single-threaded, cancels out). ROUNDS times, binaries in turn.
+# files: the file run of `benches/opencv_compare.sh` (`nldenoise denoise
+#   --layers auto`, EXR in and out) with each `nldenoise` binary in turn,
+#   ROUNDS times, on a WIDTHxHEIGHT frame from `examples/make_big_frame`
+#   (features and light layers, 31 channels, made once under target/);
+#   prints each binary's minimum wall time, all its wall times, its median
+#   CPU time (user + sys) and its output's size in bytes.
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -107,5 +114,27 @@ case "$how" in
       done
     done
     ;;
-  *) echo "usage: ab.sh alternate|paired|interleave|modes|cpus ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
+  files)
+    threads=$1; shift
+    tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+    frame=target/ab-files-${w}x${h}.exr
+    if [ ! -f "$frame" ]; then
+      cargo build --release --example make_big_frame >/dev/null 2>&1
+      target/release/examples/make_big_frame "$w" "$h" "$frame" --features --layers 2>/dev/null
+    fi
+    TIMEFORMAT='%R %U %S'
+    for _ in $(seq "$rounds"); do
+      for b in "$@"; do
+        { time "$b" -q denoise "$frame" -o "$tmp/out.exr" --threads "$threads" --layers auto; } 2> "$tmp/t"
+        echo "$b $(cat "$tmp/t") $(stat -c %s "$tmp/out.exr")"
+      done
+    done > "$tmp/runs"
+    awk '{ print $1, $2 }' "$tmp/runs" | minima
+    awk '{ c[$1] = c[$1] " " ($3 + $4); z[$1] = $5 } END { for (k in c) print k, "cpu", c[k], "bytes", z[k] }' "$tmp/runs" |
+      while read -r b _ rest; do
+        echo "$b cpu median $(echo "${rest% bytes *}" | tr ' ' '\n' | sed '/^$/d' | sort -g |
+          awk '{ r[NR] = $1 } END { print r[int((NR + 1) / 2)] }') s, output ${rest##* } bytes"
+      done
+    ;;
+  *) echo "usage: ab.sh alternate|paired|interleave|modes|cpus|files ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
 esac

@@ -3,7 +3,7 @@
 
 pub mod roles;
 pub mod stream;
-mod zip;
+pub mod zip;
 
 use std::fs::File;
 use std::io::BufWriter;

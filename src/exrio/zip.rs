@@ -1,18 +1,21 @@
-//! ZIP compression of the streaming writer's scanline chunks with zlib-rs
-//! (through `flate2`), instead of the `exr` crate's `miniz_oxide` encoder.
+//! ZIP compression of the streaming writer's scanline chunks with libdeflate
+//! (through `libdeflater`), instead of the `exr` crate's `miniz_oxide` encoder.
 //!
 //! The bytes are prepared exactly as OpenEXR's ZIP compressor does (and as
 //! `exr` does): the block's little-endian bytes split into even and odd
 //! halves, then replaced by their differences (`+ 128`, wrapping), then
-//! zlib-compressed at OpenEXR's default level 4. A chunk that would not
-//! shrink is stored raw, as OpenEXR and `exr` do, and readers expect.
+//! zlib-compressed at OpenEXR's default level 4 with libdeflate, which
+//! OpenEXR itself uses since 3.2. A chunk that would not shrink is stored
+//! raw, as OpenEXR and `exr` do, and readers expect.
 //!
 //! Why: in a 31-channel 1080p `denoise` run, `miniz_oxide`'s deflate took
-//! 29 % of the CPU time (perf, 2026-11-22); with zlib-rs the deflate's
-//! samples fell by about a third, the run's user time by 6 %
-//! (`docs/performance.md`).
+//! 29 % of the CPU time (perf, 2026-11-22); zlib-rs cut the run's user time
+//! by 6 %, and still took about a fifth of it (2026-11-23). libdeflate at
+//! the same level encodes the same blocks in about three quarters of
+//! zlib-rs's time, into slightly fewer bytes (`cargo bench --bench zip`,
+//! `docs/performance.md`).
 
-use std::io::Write;
+use std::cell::RefCell;
 
 use exr::block::UncompressedBlock;
 use exr::block::chunk::{Chunk, CompressedBlock, CompressedScanLineBlock};
@@ -21,7 +24,7 @@ use exr::meta::BlockDescription;
 use exr::meta::header::Header;
 
 /// OpenEXR's default ZIP compression level (also the `exr` crate's).
-const LEVEL: u32 = 4;
+pub const LEVEL: i32 = 4;
 
 /// Compress one block into its chunk: ZIP scanline blocks here, anything
 /// else (another compression, tiles, a big-endian machine, whose native
@@ -41,7 +44,7 @@ pub(crate) fn compress_block(block: UncompressedBlock, headers: &[Header]) -> ex
         .ok()
         .and_then(|y| y.checked_add(header.own_attributes.layer_position.y()))
         .ok_or_else(|| exr::error::Error::Invalid("block position out of range".into()))?;
-    let compressed = zip_bytes(&block.data)?;
+    let compressed = encode(&block.data)?;
     // Only store the compressed bytes when they are smaller than the raw ones.
     let compressed_pixels_le = if compressed.len() < block.data.len() { compressed } else { block.data };
     Ok(Chunk {
@@ -50,25 +53,51 @@ pub(crate) fn compress_block(block: UncompressedBlock, headers: &[Header]) -> ex
     })
 }
 
-/// OpenEXR's ZIP encoding of little-endian block bytes.
-fn zip_bytes(data: &[u8]) -> exr::error::Result<Vec<u8>> {
+/// OpenEXR's ZIP encoding of little-endian block bytes: [`prepare`], then a
+/// zlib stream from libdeflate at [`LEVEL`].
+pub fn encode(data: &[u8]) -> exr::error::Result<Vec<u8>> {
+    thread_local! {
+        // A compressor holds its match finder's tables: one per thread, reused.
+        static COMPRESSOR: RefCell<Option<libdeflater::Compressor>> = const { RefCell::new(None) };
+    }
+    let prepared = prepare(data);
+    let fail = |what: String| exr::error::Error::Invalid(format!("zip compression: {what}").into());
+    COMPRESSOR.with_borrow_mut(|slot| {
+        let c = match slot {
+            Some(c) => c,
+            None => slot.insert(libdeflater::Compressor::new(
+                libdeflater::CompressionLvl::new(LEVEL).map_err(|e| fail(format!("{e:?}")))?,
+            )),
+        };
+        let mut out = vec![0u8; c.zlib_compress_bound(prepared.len())];
+        let n = c.zlib_compress(&prepared, &mut out).map_err(|e| fail(e.to_string()))?;
+        out.truncate(n);
+        Ok(out)
+    })
+}
+
+/// OpenEXR's ZIP preparation of little-endian block bytes: the even bytes,
+/// then the odd ones, each replaced by its difference to the previous one
+/// plus 128 (wrapping). Two passes written so that they vectorise (the
+/// split, then the differences from the split copy).
+pub fn prepare(data: &[u8]) -> Vec<u8> {
+    let half = data.len().div_ceil(2);
+    let mut split = vec![0u8; data.len()];
+    let (even, odd) = split.split_at_mut(half);
+    for ((pair, e), o) in data.chunks_exact(2).zip(even.iter_mut()).zip(odd.iter_mut()) {
+        (*e, *o) = (pair[0], pair[1]);
+    }
+    if data.len() % 2 == 1 {
+        even[half - 1] = data[data.len() - 1];
+    }
     let mut prepared = vec![0u8; data.len()];
-    // Even bytes first, then odd bytes.
-    let (even, odd) = prepared.split_at_mut(data.len().div_ceil(2));
-    for (i, pair) in data.chunks(2).enumerate() {
-        even[i] = pair[0];
-        if let Some(b) = pair.get(1) {
-            odd[i] = *b;
+    if let Some(first) = split.first() {
+        prepared[0] = *first;
+        for (p, w) in prepared[1..].iter_mut().zip(split.windows(2)) {
+            *p = w[1].wrapping_sub(w[0]).wrapping_add(128);
         }
     }
-    // Each byte replaced by its difference to the previous one, plus 128.
-    for i in (1..prepared.len()).rev() {
-        prepared[i] = prepared[i].wrapping_sub(prepared[i - 1]).wrapping_add(128);
-    }
-    let mut encoder =
-        flate2::write::ZlibEncoder::new(Vec::with_capacity(data.len() / 2), flate2::Compression::new(LEVEL));
-    encoder.write_all(&prepared)?;
-    Ok(encoder.finish()?)
+    prepared
 }
 
 #[cfg(test)]
@@ -82,7 +111,7 @@ mod tests {
     fn prepared_bytes_invert() {
         for len in [0usize, 1, 2, 3, 17, 1000] {
             let data: Vec<u8> = (0..len).map(|i| ((i * 7919 + 13) % 251) as u8).collect();
-            let z = zip_bytes(&data).unwrap();
+            let z = encode(&data).unwrap();
             let mut dec = Vec::new();
             std::io::Read::read_to_end(&mut flate2::read::ZlibDecoder::new(&z[..]), &mut dec).unwrap();
             // Undo the differences, then re-interleave.
