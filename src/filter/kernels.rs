@@ -366,12 +366,24 @@ pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
     }
 }
 
+/// The variance term's subtraction `d2 - alpha s` as one fused multiply-add,
+/// or, with `ALPHA_ONE` (the caller has checked `alpha == 1`, the default), as
+/// the subtraction `d2 - s`. The two give the same bits: `-1 * s` is exact,
+/// so the fused multiply-add rounds exactly the sum the subtraction rounds,
+/// signed zeros, infinities and NaNs included. On CPUs whose adds run on other
+/// pipes than their multiplies and fused multiply-adds (AMD Zen), the
+/// subtraction moves work off the busier pipes.
+#[inline(always)]
+fn variance_term<const ALPHA_ONE: bool>(alpha: f32, s: f32, d2: f32) -> f32 {
+    if ALPHA_ONE { d2 - s } else { (-alpha).mul_add(s, d2) }
+}
+
 /// [`accumulate_colour_distance_pair`] over three channels at once into
 /// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
 /// same operations as three calls on rows filled with zeros, without the rows'
-/// round trips through memory.
+/// round trips through memory. `ALPHA_ONE` as in [`variance_term`].
 #[inline(always)]
-pub fn colour_distance_pair_rgb(
+pub fn colour_distance_pair_rgb<const ALPHA_ONE: bool>(
     fwd: &mut [f32],
     mir: &mut [f32],
     up: [&[f32]; 3],
@@ -389,7 +401,10 @@ pub fn colour_distance_pair_rgb(
         let d2 = d * d;
         let m = if vq < vp { vq } else { vp };
         let r = recip(k2.mul_add(vp + vq, eps));
-        ((-alpha).mul_add(vp + m, d2).mul_add(r, a), (-alpha).mul_add(vq + m, d2).mul_add(r, b))
+        (
+            variance_term::<ALPHA_ONE>(alpha, vp + m, d2).mul_add(r, a),
+            variance_term::<ALPHA_ONE>(alpha, vq + m, d2).mul_add(r, b),
+        )
     };
     if n < CHUNK {
         for i in 0..n {
@@ -967,6 +982,51 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// With `alpha == 1`, the subtraction of [`variance_term`] gives the
+    /// fused multiply-add's bits, on special values (signed zeros,
+    /// infinities, NaN, subnormals) and on a sweep of mixed magnitudes; and
+    /// so does the whole three-channel distance kernel. Fails if the
+    /// subtraction's operands are swapped or the term is computed otherwise.
+    #[test]
+    fn alpha_one_subtraction_matches_the_fused_multiply_add() {
+        let special = [0.0f32, -0.0, 1.0, -1.0, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40, -1e-40, 3.4e38];
+        let mut sweep = Vec::new();
+        let mut x = 1e-30f32;
+        while x < 1e30 {
+            sweep.extend([x, -x, x * 1.37, -x * 0.71]);
+            x *= 1.7;
+        }
+        let values: Vec<f32> = special.iter().chain(&sweep).copied().collect();
+        for &s in &values {
+            for &d2 in &values {
+                let (sub, fma) = (variance_term::<true>(1.0, s, d2), variance_term::<false>(1.0, s, d2));
+                assert!(sub.to_bits() == fma.to_bits() || (sub.is_nan() && fma.is_nan()), "s {s:e} d2 {d2:e}");
+            }
+        }
+        // The kernel: 40 samples (two chunks and an overlapping last one),
+        // variances non-negative as in the filter.
+        let n = 40;
+        let row = |k: usize, scale: f32| -> Vec<f32> {
+            (0..n).map(|i| values[(i * 7 + k * 13) % values.len()].abs().min(1e6) * scale).collect()
+        };
+        let (u, v): (Vec<Vec<f32>>, Vec<Vec<f32>>) =
+            ((0..6).map(|k| row(k, 1.0)).collect(), (0..6).map(|k| row(k + 6, 0.5)).collect());
+        fn refs(r: &[Vec<f32>], a: usize) -> [&[f32]; 3] {
+            [&r[a], &r[a + 1], &r[a + 2]]
+        }
+        let run = |one: bool| {
+            let (mut f, mut m) = (vec![0.0f32; n], vec![0.0f32; n]);
+            let args = (refs(&u, 0), refs(&u, 3), refs(&v, 0), refs(&v, 3));
+            if one {
+                colour_distance_pair_rgb::<true>(&mut f, &mut m, args.0, args.1, args.2, args.3, (1.0, 1e-10, 0.2025));
+            } else {
+                colour_distance_pair_rgb::<false>(&mut f, &mut m, args.0, args.1, args.2, args.3, (1.0, 1e-10, 0.2025));
+            }
+            f.iter().chain(&m).map(|x| x.to_bits()).collect::<Vec<_>>()
+        };
+        assert_eq!(run(true), run(false));
     }
 
     #[test]

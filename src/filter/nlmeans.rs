@@ -624,15 +624,16 @@ fn distance_rows(
     k2: f32,
 ) {
     if let ([u0, u1, u2], [v0, v1, v2]) = (&job.values[..], &job.variance[..]) {
-        colour_distance_pair_rgb(
-            d,
-            m,
-            [shifted(u0, y, x, 0), shifted(u1, y, x, 0), shifted(u2, y, x, 0)],
-            [shifted(u0, y + dy, x, dx), shifted(u1, y + dy, x, dx), shifted(u2, y + dy, x, dx)],
-            [shifted(v0, y, x, 0), shifted(v1, y, x, 0), shifted(v2, y, x, 0)],
-            [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)],
-            (s.alpha, s.eps, k2),
-        );
+        let up = [shifted(u0, y, x, 0), shifted(u1, y, x, 0), shifted(u2, y, x, 0)];
+        let uq = [shifted(u0, y + dy, x, dx), shifted(u1, y + dy, x, dx), shifted(u2, y + dy, x, dx)];
+        let vp = [shifted(v0, y, x, 0), shifted(v1, y, x, 0), shifted(v2, y, x, 0)];
+        let vq = [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)];
+        let consts = (s.alpha, s.eps, k2);
+        if s.alpha == 1.0 {
+            colour_distance_pair_rgb::<true>(d, m, up, uq, vp, vq, consts);
+        } else {
+            colour_distance_pair_rgb::<false>(d, m, up, uq, vp, vq, consts);
+        }
     } else {
         d.fill(0.0);
         m.fill(0.0);
