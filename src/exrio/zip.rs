@@ -11,7 +11,7 @@
 //! Why: in a 31-channel 1080p `denoise` run, `miniz_oxide`'s deflate took
 //! 29 % of the CPU time (perf, 2026-11-22); zlib-rs cut the run's user time
 //! by 6 %, and still took about a fifth of it (2026-11-23). libdeflate at
-//! the same level encodes the same blocks in about three quarters of
+//! the same level encodes the same blocks in about four fifths of
 //! zlib-rs's time, into slightly fewer bytes (`cargo bench --bench zip`,
 //! `docs/performance.md`).
 
