@@ -78,24 +78,30 @@ pub fn encode(data: &[u8]) -> exr::error::Result<Vec<u8>> {
 
 /// OpenEXR's ZIP preparation of little-endian block bytes: the even bytes,
 /// then the odd ones, each replaced by its difference to the previous one
-/// plus 128 (wrapping). Two passes written so that they vectorise (the
-/// split, then the differences from the split copy).
+/// plus 128 (wrapping). One pass over consecutive byte pairs, written so that
+/// it vectorises: the even and odd outputs at `i` are the differences of
+/// pair `i` and pair `i - 1`; the odd half's first byte follows the even
+/// half's last.
 pub fn prepare(data: &[u8]) -> Vec<u8> {
-    let half = data.len().div_ceil(2);
-    let mut split = vec![0u8; data.len()];
-    let (even, odd) = split.split_at_mut(half);
-    for ((pair, e), o) in data.chunks_exact(2).zip(even.iter_mut()).zip(odd.iter_mut()) {
-        (*e, *o) = (pair[0], pair[1]);
+    let n = data.len();
+    let half = n.div_ceil(2);
+    let mut prepared = vec![0u8; n];
+    if n == 0 {
+        return prepared;
     }
-    if data.len() % 2 == 1 {
-        even[half - 1] = data[data.len() - 1];
+    let (even, odd) = prepared.split_at_mut(half);
+    even[0] = data[0];
+    let pairs = data.chunks_exact(2).zip(data.get(2..).unwrap_or_default().chunks_exact(2));
+    for ((prev, pair), (e, o)) in pairs.zip(even.iter_mut().zip(odd.iter_mut()).skip(1)) {
+        *e = pair[0].wrapping_sub(prev[0]).wrapping_add(128);
+        *o = pair[1].wrapping_sub(prev[1]).wrapping_add(128);
     }
-    let mut prepared = vec![0u8; data.len()];
-    if let Some(first) = split.first() {
-        prepared[0] = *first;
-        for (p, w) in prepared[1..].iter_mut().zip(split.windows(2)) {
-            *p = w[1].wrapping_sub(w[0]).wrapping_add(128);
-        }
+    if n % 2 == 1 && n > 1 {
+        // The unpaired last byte is the even half's last.
+        even[half - 1] = data[n - 1].wrapping_sub(data[n - 3]).wrapping_add(128);
+    }
+    if let Some(o) = odd.first_mut() {
+        *o = data[1].wrapping_sub(data[2 * (half - 1)]).wrapping_add(128);
     }
     prepared
 }
@@ -109,7 +115,7 @@ mod tests {
     /// in `tests/all`); here, the byte preparation inverts exactly.
     #[test]
     fn prepared_bytes_invert() {
-        for len in [0usize, 1, 2, 3, 17, 1000] {
+        for len in [0usize, 1, 2, 3, 4, 5, 17, 1000] {
             let data: Vec<u8> = (0..len).map(|i| ((i * 7919 + 13) % 251) as u8).collect();
             let z = encode(&data).unwrap();
             let mut dec = Vec::new();
