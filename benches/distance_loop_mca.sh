@@ -36,9 +36,11 @@ for i, (addr, text) in enumerate(ins):
     m = re.match(r"j\w+\s+([0-9a-f]+)$", text)
     if m and int(m.group(1), 16) < addr:
         start = int(m.group(1), 16)
-        body = [t for a, t in ins if start <= a <= addr]
-        inner = not any(re.match(r"j\w+\s+([0-9a-f]+)$", t) and int(t.split()[1], 16) < start
-                        for t in body[:-1] if re.match(r"j\w+\s+[0-9a-f]+$", t))
+        span = [(a, t) for a, t in ins if start <= a <= addr]
+        body = [t for _, t in span]
+        # Innermost: no other backward jump inside the span.
+        inner = not any((j := re.match(r"j\w+\s+([0-9a-f]+)$", t)) and start <= int(j.group(1), 16) < a
+                        for a, t in span[:-1])
         if inner and sum("vpsubd" in t for t in body) == 6 and len(body) < 400:
             loops.append((start, body))
 if not loops:
