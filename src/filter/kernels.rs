@@ -381,7 +381,9 @@ fn variance_term<const ALPHA_ONE: bool>(alpha: f32, s: f32, d2: f32) -> f32 {
 /// [`accumulate_colour_distance_pair`] over three channels at once into
 /// zeroed rows: `fwd[i] = ((0 + t0) + t1) + t2` (and `mir` likewise), the
 /// same operations as three calls on rows filled with zeros, without the rows'
-/// round trips through memory. `ALPHA_ONE` as in [`variance_term`].
+/// round trips through memory. With `ALPHA_ONE` (the caller has checked
+/// `alpha == 1`), the variance term `d2 - alpha s` is a subtraction instead
+/// of a fused multiply-add, with the same bits (see `variance_term`).
 #[inline(always)]
 pub fn colour_distance_pair_rgb<const ALPHA_ONE: bool>(
     fwd: &mut [f32],
