@@ -242,9 +242,13 @@ pub struct ChannelRows {
 }
 
 impl ChannelRows {
-    /// The rows as an `f32` plane.
-    pub fn to_plane(&self) -> Plane {
-        Plane::from_vec(self.rect, self.samples.to_f32()).expect("rows hold rect.area() samples")
+    /// The rows as an `f32` plane; `f32` samples are moved, not copied.
+    pub fn into_plane(self) -> Plane {
+        let samples = match self.samples {
+            Samples::F32(v) => v,
+            other => other.to_f32(),
+        };
+        Plane::from_vec(self.rect, samples).expect("rows hold rect.area() samples")
     }
 
     /// The sub-range of rows `[y0, y1)` (full width).

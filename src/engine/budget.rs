@@ -14,9 +14,13 @@
 //!   copies counted as half a plane per feature channel);
 //! * band outputs (`f32` denoised channels plus the rest), `depth + 2` of them
 //!   in flight;
-//! * the writer: rows waiting for their block, plus one band's raw block bytes
-//!   and their compressed copies;
-//! * the reader's blocks being decompressed and decoded (one per thread);
+//! * the writer: rows waiting for their block, a band's compressed blocks,
+//!   and its encoders' scratch (`exrio::zip::ScratchPool`: prepared and
+//!   deflated bytes of one block per encoder; the encoders are the rayon
+//!   global pool's threads, at most one per block of a band);
+//! * the reader's blocks being decompressed and decoded, one per thread,
+//!   twice (compressed then inflated bytes, inflated bytes then samples; the
+//!   inflated buffers stay in the reader's scratch pool);
 //! * a fixed allowance for the program, thread stacks and allocator slack.
 
 use crate::error::Error;
@@ -53,6 +57,8 @@ pub struct BudgetInput {
     pub out_block_rows: usize,
     /// Worker threads.
     pub threads: usize,
+    /// Threads of the rayon global pool, where the writer encodes blocks.
+    pub writer_threads: usize,
     /// What sizes the filter kernel's working memory (per thread).
     pub kernel: ScratchShape,
 }
@@ -84,12 +90,16 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     let tiles = b.threads as u64 * 4 * (tile + 2 * h).min(w) * window * b.filter_planes as u64 * 4;
     let band_out = w * band * (b.output_channels as u64 * 4 + b.bytes_all as u64);
     let outputs = (depth as u64 + 2) * band_out;
-    // The writer: rows waiting for their block, one band's raw block bytes and
-    // their compressed copies.
-    let writer = w * (band + b.out_block_rows as u64) * (b.output_channels as u64 * 4 + b.bytes_all as u64)
-        + 2 * w * band.max(b.out_block_rows as u64) * (b.output_channels as u64 * 4 + b.bytes_all as u64);
+    // The writer: rows waiting for their block, a band's compressed blocks
+    // (stored raw when they do not shrink), and two block-sized buffers per
+    // encoder.
+    let out_px = b.output_channels as u64 * 4 + b.bytes_all as u64;
+    let obr = b.out_block_rows.max(1) as u64;
+    // A band completes at most `band / obr + 1` blocks at once.
+    let encoders = (b.writer_threads.max(1) as u64).min(band / obr + 1);
+    let writer = w * (band + obr) * out_px + w * band.max(obr) * out_px + encoders * 2 * w * obr * out_px;
     // The reader: blocks being decompressed and decoded, one per thread, twice
-    // (raw bytes and samples).
+    // (a chunk's compressed bytes are freed once inflated).
     let decoding = b.threads as u64 * 2 * w * b.block_rows as u64 * b.bytes_all as u64;
     // The kernel's blocks: one per thread at a time.
     let kernel = b.threads as u64 * b.kernel.bytes(tile as usize, band_rows);
@@ -224,6 +234,7 @@ mod tests {
             block_rows: 16,
             out_block_rows: 16,
             threads: 2,
+            writer_threads: 2,
             kernel: ScratchShape { search_radius: 10, patch_radius: 3, jobs: 2, accumulators: 8, guides: 3 },
         }
     }

@@ -197,6 +197,10 @@ fn plan_with(
             block_rows: source.block_rows(),
             out_block_rows: opts.out_block_rows,
             threads,
+            // The writer's thread is not in a pool: its blocks are encoded on
+            // the global pool, whose size is the default unless configured.
+            writer_threads: rayon::current_num_threads()
+                .max(std::thread::available_parallelism().map_or(1, |n| n.get())),
             kernel: ScratchShape {
                 search_radius: params.search_radius,
                 patch_radius: params.patch_radius,
@@ -378,7 +382,7 @@ fn filter_band(
     // f32 planes, each converted once and moved into the inputs at its last use.
     let uses = roles.inputs_channels();
     // Converted on every worker (each channel's rows freed once converted).
-    let converted: Vec<Plane> = pool.install(|| filter_rows.into_par_iter().map(|r| r.to_plane()).collect());
+    let converted: Vec<Plane> = pool.install(|| filter_rows.into_par_iter().map(ChannelRows::into_plane).collect());
     let mut planes: Vec<(String, Option<Plane>, usize)> = Vec::new();
     for (&i, plane) in cp.filter_idx.iter().zip(converted) {
         let n = uses.iter().filter(|u| **u == names[i]).count();

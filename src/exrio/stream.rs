@@ -10,10 +10,11 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 
+use exr::block::BlockIndex;
 use exr::block::chunk::Chunk;
+use exr::block::lines::LineIndex;
 use exr::block::reader::ChunksReader;
 use exr::block::writer::ChunksWriter;
-use exr::block::{BlockIndex, UncompressedBlock};
 use exr::math::Vec2;
 use exr::meta::attribute::{ChannelDescription, ChannelList, LineOrder, SampleType, Text};
 use exr::meta::header::Header;
@@ -22,6 +23,7 @@ use memmap2::Mmap;
 use rayon::prelude::*;
 use smallvec::SmallVec;
 
+use super::zip::BlockBytes;
 use super::{AtomicTarget, OutputCompression, SampleKind, exr_err};
 use crate::engine::{RowSink, RowSource};
 use crate::error::Error;
@@ -67,6 +69,8 @@ pub struct ExrSource {
     names: Vec<String>,
     kinds: Vec<SampleKind>,
     cache: BTreeMap<(i64, i64), DecodedBlock>,
+    /// The decoders' block-sized buffers, kept while the file is read.
+    scratch: super::zip::ScratchPool,
     /// Chunks decoded so far (a chunk decoded twice counts twice).
     pub chunks_decoded: usize,
 }
@@ -104,6 +108,7 @@ impl ExrSource {
             names,
             kinds,
             cache: BTreeMap::new(),
+            scratch: Default::default(),
             chunks_decoded: 0,
         })
     }
@@ -126,9 +131,9 @@ impl ExrSource {
         }
     }
 
-    fn decode(&self, block: UncompressedBlock) -> Result<DecodedBlock, Error> {
+    fn decode(&self, index: BlockIndex, data: BlockBytes<'_>) -> Result<DecodedBlock, Error> {
         let dw = self.data_window;
-        let BlockIndex { pixel_position, pixel_size, .. } = block.index;
+        let BlockIndex { pixel_position, pixel_size, .. } = index;
         let rect = Rect::from_origin_size(
             dw.x0 + pixel_position.0 as i64,
             dw.y0 + pixel_position.1 as i64,
@@ -146,15 +151,41 @@ impl ExrSource {
             })
             .collect();
         // Lines come in file order: for each row, for each channel.
-        for line in block.lines(&self.header.channels) {
-            let bytes = line.value;
-            match &mut channels[line.location.channel] {
-                Samples::F16(v) => v.extend(bytes.chunks_exact(2).map(|b| half::f16::from_ne_bytes([b[0], b[1]]))),
-                Samples::F32(v) => {
-                    v.extend(bytes.chunks_exact(4).map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+        for (range, line) in LineIndex::lines_in_block(index, &self.header.channels) {
+            if range.end > data.len() || range.start % 2 == 1 {
+                return Err(exr_err(
+                    &self.path,
+                    format!("block at {:?} holds fewer bytes than its lines", (rect.x0, rect.y0)),
+                ));
+            }
+            match (data, &mut channels[line.channel]) {
+                (BlockBytes::Plain(d), Samples::F16(v)) => {
+                    v.extend(d[range].chunks_exact(2).map(|b| half::f16::from_ne_bytes([b[0], b[1]])))
                 }
-                Samples::U32(v) => {
-                    v.extend(bytes.chunks_exact(4).map(|b| u32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+                (BlockBytes::Plain(d), Samples::F32(v)) => {
+                    v.extend(d[range].chunks_exact(4).map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+                }
+                (BlockBytes::Plain(d), Samples::U32(v)) => {
+                    v.extend(d[range].chunks_exact(4).map(|b| u32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
+                }
+                // ZIP's halves (little-endian machines only): byte 2i of the
+                // line is even[i], byte 2i + 1 is odd[i].
+                (BlockBytes::Split { even, odd }, samples) => {
+                    let r = range.start / 2..range.end / 2;
+                    let (e, o) = (&even[r.clone()], &odd[r]);
+                    match samples {
+                        Samples::F16(v) => v.extend(e.iter().zip(o).map(|(&a, &b)| half::f16::from_le_bytes([a, b]))),
+                        Samples::F32(v) => v.extend(
+                            e.chunks_exact(2)
+                                .zip(o.chunks_exact(2))
+                                .map(|(a, b)| f32::from_le_bytes([a[0], b[0], a[1], b[1]])),
+                        ),
+                        Samples::U32(v) => v.extend(
+                            e.chunks_exact(2)
+                                .zip(o.chunks_exact(2))
+                                .map(|(a, b)| u32::from_le_bytes([a[0], b[0], a[1], b[1]])),
+                        ),
+                    }
                 }
             }
         }
@@ -193,9 +224,10 @@ impl ExrSource {
         let decoded: Vec<DecodedBlock> = chunks
             .into_par_iter()
             .map(|c| {
-                let block = UncompressedBlock::decompress_chunk(c, &meta, false)
-                    .map_err(|e| exr_err(&self.path, format!("could not decompress a chunk: {e}")))?;
-                self.decode(block)
+                self.scratch.with(|scratch| {
+                    super::zip::with_block(c, &meta, scratch, |index, data| self.decode(index, data))
+                        .map_err(|e| exr_err(&self.path, format!("could not decompress a chunk: {e}")))?
+                })
             })
             .collect::<Result<_, _>>()?;
         for b in decoded {
@@ -441,8 +473,9 @@ impl ChunkAssembler {
         Ok(())
     }
 
-    /// Every block whose rows are all here, with its chunk index.
-    fn ready_blocks(&mut self) -> Vec<(usize, UncompressedBlock)> {
+    /// Every block whose rows are all here: its chunk index and index. The
+    /// rows stay until [`ChunkAssembler::release`].
+    fn ready_blocks(&mut self) -> Vec<(usize, BlockIndex)> {
         let mut blocks = Vec::new();
         let have = self.received_to();
         while self.next_y < self.dw.y1 {
@@ -450,39 +483,42 @@ impl ChunkAssembler {
             if have < end {
                 break;
             }
-            let mut data = Vec::new();
-            for y in self.next_y..end {
-                let piece = self.pieces.iter().find(|p| p[0].rect.y0 <= y && y < p[0].rect.y1).expect("rows received");
-                for rows in piece {
-                    let w = rows.rect.width();
-                    let off = (y - rows.rect.y0) as usize * w;
-                    match &rows.samples {
-                        Samples::F16(v) => {
-                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
-                        }
-                        Samples::F32(v) => {
-                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
-                        }
-                        Samples::U32(v) => {
-                            v[off..off + w].iter().for_each(|s| data.extend_from_slice(&s.to_ne_bytes()))
-                        }
-                    }
-                }
-            }
             let index = BlockIndex {
                 layer: 0,
                 pixel_position: Vec2(0, (self.next_y - self.dw.y0) as usize),
                 pixel_size: Vec2(self.dw.width(), (end - self.next_y) as usize),
                 level: Vec2(0, 0),
             };
-            blocks.push((self.next_chunk, UncompressedBlock { index, data }));
+            blocks.push((self.next_chunk, index));
             self.next_chunk += 1;
             self.next_y = end;
-            while self.pieces.front().is_some_and(|p| p[0].rect.y1 <= self.next_y) {
-                self.pieces.pop_front();
-            }
         }
         blocks
+    }
+
+    /// A ready block's lines of native bytes, in file order (each row, then
+    /// each channel in sorted order), borrowed from the received rows.
+    fn lines(&self, index: BlockIndex) -> impl Iterator<Item = &[u8]> {
+        let y0 = self.dw.y0 + index.pixel_position.y() as i64;
+        (y0..y0 + index.pixel_size.y() as i64).flat_map(move |y| {
+            let piece = self.pieces.iter().find(|p| p[0].rect.y0 <= y && y < p[0].rect.y1).expect("rows received");
+            piece.iter().map(move |rows| {
+                let w = rows.rect.width();
+                let off = (y - rows.rect.y0) as usize * w;
+                match &rows.samples {
+                    Samples::F16(v) => bytemuck::cast_slice(&v[off..off + w]),
+                    Samples::F32(v) => bytemuck::cast_slice(&v[off..off + w]),
+                    Samples::U32(v) => bytemuck::cast_slice(&v[off..off + w]),
+                }
+            })
+        })
+    }
+
+    /// Drop the received rows that every ready block has been assembled from.
+    fn release(&mut self) {
+        while self.pieces.front().is_some_and(|p| p[0].rect.y1 <= self.next_y) {
+            self.pieces.pop_front();
+        }
     }
 
     fn complete(&self) -> bool {
@@ -499,6 +535,7 @@ fn write_thread(
 ) -> Result<(), Error> {
     let lines_per_block = header.compression.scan_lines_per_block();
     let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pieces: Default::default() };
+    let scratch = super::zip::ScratchPool::default();
     let mut bad_rows: Option<String> = None;
     let mut writer = BufWriter::new(file);
     let result = exr::block::write(&mut writer, smallvec::smallvec![header], true, |meta, chunk_writer| {
@@ -510,8 +547,13 @@ fn write_thread(
             let blocks = asm.ready_blocks();
             let chunks: Vec<(usize, Chunk)> = blocks
                 .into_par_iter()
-                .map(|(i, b)| super::zip::compress_block(b, &meta.headers).map(|c| (i, c)))
+                .map(|(i, index)| {
+                    scratch
+                        .with(|s| super::zip::compress_block(index, &meta.headers, s, || asm.lines(index)))
+                        .map(|c| (i, c))
+                })
                 .collect::<Result<_, _>>()?;
+            asm.release();
             for (i, c) in chunks {
                 chunk_writer.write_chunk(i, c)?;
             }
