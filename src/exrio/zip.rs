@@ -1,19 +1,25 @@
-//! ZIP compression of the streaming writer's scanline chunks with libdeflate
-//! (through `libdeflater`), instead of the `exr` crate's `miniz_oxide` encoder.
+//! ZIP chunks of the streaming reader and writer, with libdeflate (through
+//! `libdeflater`) instead of the `exr` crate's `zune-inflate` decoder and
+//! `miniz_oxide` encoder.
 //!
 //! The bytes are prepared exactly as OpenEXR's ZIP compressor does (and as
 //! `exr` does): the block's little-endian bytes split into even and odd
 //! halves, then replaced by their differences (`+ 128`, wrapping), then
 //! zlib-compressed at OpenEXR's default level 4 with libdeflate, which
 //! OpenEXR itself uses since 3.2. A chunk that would not shrink is stored
-//! raw, as OpenEXR and `exr` do, and readers expect.
+//! raw, as OpenEXR and `exr` do, and readers expect. The writer prepares a
+//! block straight from its rows, and the reader decodes samples straight
+//! from the two halves, so neither makes an interleaved copy of a block;
+//! their block-sized buffers are reused through a [`ScratchPool`].
 //!
 //! Why: in a 31-channel 1080p `denoise` run, `miniz_oxide`'s deflate took
 //! 29 % of the CPU time (perf, 2026-11-22); zlib-rs cut the run's user time
 //! by 6 %, and still took about a fifth of it (2026-11-23). libdeflate at
 //! the same level encodes the same blocks in about four fifths of
 //! zlib-rs's time, into slightly fewer bytes (`cargo bench --bench zip`,
-//! `docs/performance.md`).
+//! `docs/performance.md`). Fresh block-sized buffers for every block made
+//! most of a memory-bounded run's page faults (docs/performance.md,
+//! "Session 15").
 
 use std::cell::RefCell;
 
