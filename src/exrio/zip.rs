@@ -93,7 +93,7 @@ pub(crate) fn compress_block<'a, I: Iterator<Item = &'a [u8]>>(
         .and_then(|y| y.checked_add(header.own_attributes.layer_position.y()))
         .ok_or_else(|| Error::Invalid("block position out of range".into()))?;
     let Scratch { prepared, out } = scratch;
-    if prepare_lines(lines(), prepared) != expected {
+    if prepare_lines(lines(), prepared) != Some(expected) {
         return Err(Error::Invalid("block lines do not add up to the block's size".into()));
     }
     let n = deflate(prepared, out)?;
@@ -158,18 +158,20 @@ pub fn prepare(data: &[u8]) -> Vec<u8> {
 
 /// [`prepare`] of the concatenation of `lines`, each of an even number of
 /// bytes, written into a reused buffer without the concatenation; returns
-/// the byte count. One pass over consecutive byte pairs, written so that it
+/// the byte count, or `None` for a line of an odd number of bytes. One pass over consecutive byte pairs, written so that it
 /// vectorises: the even and odd outputs at `i` are the differences of pair
 /// `i` and pair `i - 1`; the odd half's first byte follows the even half's
 /// last.
-fn prepare_lines<'a>(lines: impl Iterator<Item = &'a [u8]>, prepared: &mut Vec<u8>) -> usize {
+fn prepare_lines<'a>(lines: impl Iterator<Item = &'a [u8]>, prepared: &mut Vec<u8>) -> Option<usize> {
     let lines: smallvec::SmallVec<[&[u8]; 64]> = lines.collect();
+    if lines.iter().any(|l| !l.len().is_multiple_of(2)) {
+        return None;
+    }
     let n: usize = lines.iter().map(|l| l.len()).sum();
-    debug_assert!(lines.iter().all(|l| l.len() % 2 == 0), "lines hold whole samples");
     prepared.clear();
     prepared.resize(n, 0);
     if n == 0 {
-        return 0;
+        return Some(0);
     }
     let (even, odd) = prepared.split_at_mut(n / 2);
     let mut k = 0;
@@ -195,7 +197,7 @@ fn prepare_lines<'a>(lines: impl Iterator<Item = &'a [u8]>, prepared: &mut Vec<u
     // The odd half's first byte: the first odd byte after the last even one.
     let first_odd = lines.iter().find(|l| l.len() >= 2).map_or(0, |l| l[1]);
     odd[0] = first_odd.wrapping_sub(prev.map_or(0, |p| p[0])).wrapping_add(128);
-    n
+    Some(n)
 }
 
 /// A block's native bytes as the decoder hands them over.
@@ -326,9 +328,10 @@ mod tests {
                     &data[at - c..at]
                 })
                 .collect();
-            assert_eq!(prepare_lines(lines.into_iter(), &mut prepared), 600);
+            assert_eq!(prepare_lines(lines.into_iter(), &mut prepared), Some(600));
             assert_eq!(prepared, prepare(&data), "cuts {cuts:?}");
         }
+        assert_eq!(prepare_lines([&data[..3], &data[3..]].into_iter(), &mut prepared), None, "a half sample");
     }
 
     /// The reader's libdeflate path decodes each ZIP chunk (compressed by
