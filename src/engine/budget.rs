@@ -271,6 +271,20 @@ mod tests {
         assert!(e.contains("memory limit"), "{e}");
     }
 
+    /// The writer's scratch is counted per encoder, and a band never keeps
+    /// more encoders busy than it completes blocks.
+    #[test]
+    fn writer_scratch_is_counted_per_busy_encoder() {
+        let with = |threads: usize, band: usize| {
+            estimate(&BudgetInput { writer_threads: threads, ..input(4096, 4096) }, band, 256, 0)
+        };
+        let block = 2 * 4096 * 16 * (3 * 4 + 24 * 2 + 14 * 4) as u64;
+        assert_eq!(with(2, 64) - with(1, 64), block);
+        assert_eq!(with(64, 64), with(5, 64), "64 rows complete at most 5 blocks of 16");
+        assert!(with(5, 64) > with(4, 64));
+        assert_eq!(with(8, 8), with(1, 8), "8 rows complete at most one block");
+    }
+
     #[test]
     fn sizes_parse() {
         assert_eq!(parse_size("512M").unwrap(), 512 << 20);

@@ -473,8 +473,8 @@ impl ChunkAssembler {
         Ok(())
     }
 
-    /// Every block whose rows are all here: its chunk index and index. The
-    /// rows stay until [`ChunkAssembler::release`].
+    /// Every block whose rows are all here: its chunk number and block
+    /// index. The rows stay until [`ChunkAssembler::release`].
     fn ready_blocks(&mut self) -> Vec<(usize, BlockIndex)> {
         let mut blocks = Vec::new();
         let have = self.received_to();
