@@ -33,7 +33,10 @@
 #   ROUNDS times, on a WIDTHxHEIGHT frame from `examples/make_big_frame`
 #   (features and light layers, 31 channels, made once under target/);
 #   prints each binary's minimum wall time, all its wall times, its median
-#   CPU time (user + sys) and its output's size in bytes.
+#   CPU time (user + sys), its median page faults and its output's size in
+#   bytes. FRAME="--features" changes the frame's channels (19 channels, as
+#   benches/memory.sh), ARGS="--memory-limit 256M --search-radius 3
+#   --patch-radius 1" the denoise options (default "--layers auto").
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -117,23 +120,28 @@ case "$how" in
   files)
     threads=$1; shift
     tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
-    frame=target/ab-files-${w}x${h}.exr
+    command -v perf >/dev/null || { echo "needs perf (apt-get install linux-perf)" >&2; exit 1; }
+    [ -x /usr/bin/time ] || { echo "needs /usr/bin/time (apt-get install time)" >&2; exit 1; }
+    read -r -a frame_flags <<< "${FRAME:---features --layers}"
+    read -r -a args <<< "${ARGS:---layers auto}"
+    frame=target/ab-files-${w}x${h}$(printf '%s' "${frame_flags[@]}" | tr -d ' -').exr
     if [ ! -f "$frame" ]; then
       cargo build --release --example make_big_frame >/dev/null 2>&1
-      target/release/examples/make_big_frame "$w" "$h" "$frame" --features --layers 2>/dev/null
+      target/release/examples/make_big_frame "$w" "$h" "$frame" "${frame_flags[@]}" 2>/dev/null
     fi
-    TIMEFORMAT='%R %U %S'
+    median() { tr ' ' '\n' | sed '/^$/d' | sort -g | awk '{ r[NR] = $1 } END { print r[int((NR + 1) / 2)] }'; }
     for _ in $(seq "$rounds"); do
       for b in "$@"; do
-        { time "$b" -q denoise "$frame" -o "$tmp/out.exr" --threads "$threads" --layers auto; } 2> "$tmp/t"
-        echo "$b $(cat "$tmp/t") $(stat -c %s "$tmp/out.exr")"
+        /usr/bin/time -f '%e %U %S' -o "$tmp/t" perf stat -e page-faults -x, -o "$tmp/pf" \
+          "$b" -q denoise "$frame" -o "$tmp/out.exr" --threads "$threads" "${args[@]}"
+        echo "$b $(cat "$tmp/t") $(stat -c %s "$tmp/out.exr") $(grep page-faults "$tmp/pf" | cut -d, -f1)"
       done
     done > "$tmp/runs"
     awk '{ print $1, $2 }' "$tmp/runs" | minima
-    awk '{ c[$1] = c[$1] " " ($3 + $4); z[$1] = $5 } END { for (k in c) print k, "cpu", c[k], "bytes", z[k] }' "$tmp/runs" |
-      while read -r b _ rest; do
-        echo "$b cpu median $(echo "${rest% bytes *}" | tr ' ' '\n' | sed '/^$/d' | sort -g |
-          awk '{ r[NR] = $1 } END { print r[int((NR + 1) / 2)] }') s, output ${rest##* } bytes"
+    awk '{ c[$1] = c[$1] " " ($3 + $4); f[$1] = f[$1] " " $6; z[$1] = $5 }
+         END { for (k in c) print k, z[k], c[k], "|", f[k] }' "$tmp/runs" |
+      while read -r b bytes rest; do
+        echo "$b cpu median $(echo "${rest% | *}" | median) s, page faults median $(echo "${rest#* | }" | median), output $bytes bytes"
       done
     ;;
   *) echo "usage: ab.sh alternate|paired|interleave|modes|cpus|files ROUNDS MODE WIDTH HEIGHT [THREADS] BIN_A BIN_B..." >&2; exit 2 ;;
