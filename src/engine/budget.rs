@@ -16,8 +16,8 @@
 //!   in flight;
 //! * the writer: rows waiting for their block, a band's compressed blocks,
 //!   and its encoders' scratch (`exrio::zip::ScratchPool`: prepared and
-//!   deflated bytes of one block per encoder; the encoders are the rayon
-//!   global pool's threads, at most one per block of a band);
+//!   deflated bytes of one block per encoder; the encoders are the sink's
+//!   threads, as many as the engine's, at most one per block of a band);
 //! * the reader's blocks being decompressed and decoded, one per thread,
 //!   twice (compressed then inflated bytes, inflated bytes then samples; the
 //!   inflated buffers stay in the reader's scratch pool);
@@ -57,7 +57,7 @@ pub struct BudgetInput {
     pub out_block_rows: usize,
     /// Worker threads.
     pub threads: usize,
-    /// Threads of the rayon global pool, where the writer encodes blocks.
+    /// Threads the sink encodes blocks on.
     pub writer_threads: usize,
     /// What sizes the filter kernel's working memory (per thread).
     pub kernel: ScratchShape,

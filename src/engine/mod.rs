@@ -197,10 +197,9 @@ fn plan_with(
             block_rows: source.block_rows(),
             out_block_rows: opts.out_block_rows,
             threads,
-            // The writer's thread is not in a pool: its blocks are encoded on
-            // the global pool, whose size is the default unless configured.
-            writer_threads: rayon::current_num_threads()
-                .max(std::thread::available_parallelism().map_or(1, |n| n.get())),
+            // The EXR sink encodes on as many threads of its own
+            // (`ExrSink::create_with_threads`, as `api` creates it).
+            writer_threads: threads,
             kernel: ScratchShape {
                 search_radius: params.search_radius,
                 patch_radius: params.patch_radius,

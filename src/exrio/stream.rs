@@ -374,6 +374,21 @@ impl ExrSink {
         compression: OutputCompression,
         template: Option<&Header>,
     ) -> Result<ExrSink, Error> {
+        ExrSink::create_with_threads(path, data_window, channels, compression, template, 0)
+    }
+
+    /// [`ExrSink::create`] whose writer compresses blocks on `threads`
+    /// threads of its own (0 = one per core), so that a `--threads` limit
+    /// holds for the writer too (`engine::budget` counts one scratch per
+    /// encoder thread).
+    pub fn create_with_threads(
+        path: &Path,
+        data_window: Rect,
+        channels: &[SinkChannel],
+        compression: OutputCompression,
+        template: Option<&Header>,
+        threads: usize,
+    ) -> Result<ExrSink, Error> {
         if channels.is_empty() {
             return Err(exr_err(path, "refusing to write a frame with no channels"));
         }
@@ -423,7 +438,7 @@ impl ExrSink {
         let thread_path = path.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("exr-writer".into())
-            .spawn(move || write_thread(file, header, data_window, rx, &thread_path))
+            .spawn(move || write_thread(file, header, data_window, rx, &thread_path, threads))
             .map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
         Ok(ExrSink { path: path.to_path_buf(), target: Some(target), tx: Some(tx), thread: Some(thread), order })
     }
@@ -532,7 +547,13 @@ fn write_thread(
     dw: Rect,
     rx: mpsc::Receiver<Vec<ChannelRows>>,
     path: &Path,
+    threads: usize,
 ) -> Result<(), Error> {
+    let encoders = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("exr-encoder-{i}"))
+        .build()
+        .map_err(|e| Error::Internal(format!("{}: the writer's threads: {e}", path.display())))?;
     let lines_per_block = header.compression.scan_lines_per_block();
     let mut asm = ChunkAssembler { dw, lines_per_block, next_y: dw.y0, next_chunk: 0, pieces: Default::default() };
     let scratch = super::zip::ScratchPool::default();
@@ -545,14 +566,16 @@ fn write_thread(
                 break;
             }
             let blocks = asm.ready_blocks();
-            let chunks: Vec<(usize, Chunk)> = blocks
-                .into_par_iter()
-                .map(|(i, index)| {
-                    scratch
-                        .with(|s| super::zip::compress_block(index, &meta.headers, s, || asm.lines(index)))
-                        .map(|c| (i, c))
-                })
-                .collect::<Result<_, _>>()?;
+            let chunks: Vec<(usize, Chunk)> = encoders.install(|| {
+                blocks
+                    .into_par_iter()
+                    .map(|(i, index)| {
+                        scratch
+                            .with(|s| super::zip::compress_block(index, &meta.headers, s, || asm.lines(index)))
+                            .map(|c| (i, c))
+                    })
+                    .collect::<Result<_, _>>()
+            })?;
             asm.release();
             for (i, c) in chunks {
                 chunk_writer.write_chunk(i, c)?;
