@@ -25,12 +25,15 @@ use crate::image::{HalfPlane, Plane};
 /// Largest block of the internal schedule (does not change values); a
 /// region is cut into blocks of (nearly) equal size up to these. Taller
 /// blocks recompute fewer border rows (a step's distance rows span the
-/// block's rows plus `4f + dy`) but give the pool fewer tasks per band: 384
-/// rows (one block per 1080p tile) left more of two cores idle than it
-/// saved. 192 rows cut a 360-row tile (1080p) into two blocks of 180
-/// (docs/performance.md, session 12).
+/// block's rows plus `4f + dy`) but give the pool fewer tasks per band, and
+/// a band's last blocks leave cores idle: 384 rows (one block per 1080p
+/// tile) left more of two cores idle than it saved (session 12). 128 rows
+/// cut a 360-row tile (1080p) into three blocks of 120: on the AMD Zen 5
+/// machine of session 16, the full filter at 1080p on two threads ran 0.93x
+/// the time of 192-row blocks (two of 180), with one thread and at 4K the
+/// same time (docs/performance.md, session 16).
 const BLOCK_W: usize = 512;
-const BLOCK_H: usize = 192;
+const BLOCK_H: usize = 128;
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
