@@ -23,7 +23,7 @@
 //! A window clipped by the offset's valid rectangle adds its rows in
 //! increasing order from the ring of the last `T` rows.
 
-use super::kernels::{CHUNK, chunk, chunk_mut, rows_sum};
+use super::kernels::{chunk, chunk_mut, rows_sum};
 use super::nlmeans::{Aligned, stride};
 use crate::geom::Rect;
 
@@ -78,7 +78,7 @@ impl ColumnBox {
     /// Row `y` (`w` samples) was written: extend the block's prefix with it
     /// and, when it ends its block, form the block's suffixes.
     #[inline(always)]
-    pub(super) fn pushed(&mut self, y: i64, y0: i64, w: usize) {
+    pub(super) fn pushed<const W: usize>(&mut self, y: i64, y0: i64, w: usize) {
         let t = self.cap as i64;
         let at = self.slot(y, y0) * self.stride;
         let (ring, prefix) = (&self.ring[at..at + w], &mut self.prefix[..w]);
@@ -86,7 +86,7 @@ impl ColumnBox {
         if r == 0 || y == y0 {
             prefix.copy_from_slice(ring);
         } else {
-            add_assign(prefix, ring);
+            add_assign::<W>(prefix, ring);
         }
         self.prefix_row = y;
         if r == t - 1 {
@@ -97,7 +97,7 @@ impl ColumnBox {
             if lo < y {
                 let rows = (y - lo) as usize;
                 let shape = (self.slot(y - 1, y0), self.cap, self.stride, w);
-                suffix_rows(&self.ring, &mut self.suffix, at, rows, shape);
+                suffix_rows::<W>(&self.ring, &mut self.suffix, at, rows, shape);
             }
         }
     }
@@ -106,12 +106,12 @@ impl ColumnBox {
     /// (`y0`: the step's first row of this box); returns the window's
     /// height. A whole window's last row must be the last row pushed.
     #[inline(always)]
-    pub(super) fn sums(&self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
+    pub(super) fn sums<const W: usize>(&self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
         let w = out.len();
         match self.whole(y0, y, clip, f, w) {
-            Ok((head, Some(tail))) => rows_sum([head, tail], out),
+            Ok((head, Some(tail))) => rows_sum::<W, 2>([head, tail], out),
             Ok((head, None)) => out.copy_from_slice(head),
-            Err(count) => self.clipped(y0, y, clip, f, count, out),
+            Err(count) => self.clipped::<W>(y0, y, clip, f, count, out),
         }
         self.height(y, clip, f)
     }
@@ -121,7 +121,7 @@ impl ColumnBox {
     /// window starting a block: its prefix). A clipped window's sums are
     /// written into `out`, which is then the head.
     #[inline(always)]
-    pub(super) fn window<'a>(
+    pub(super) fn window<'a, const W: usize>(
         &'a self,
         y0: i64,
         y: i64,
@@ -133,7 +133,7 @@ impl ColumnBox {
         match self.whole(y0, y, clip, f, out.len()) {
             Ok((head, tail)) => (ny, head, tail),
             Err(count) => {
-                self.clipped(y0, y, clip, f, count, out);
+                self.clipped::<W>(y0, y, clip, f, count, out);
                 (ny, out, None)
             }
         }
@@ -175,9 +175,9 @@ impl ColumnBox {
 
     /// A clipped window's sums: its `count` rows added in increasing order.
     #[inline(always)]
-    fn clipped(&self, y0: i64, y: i64, clip: Rect, f: i64, count: usize, out: &mut [f32]) {
+    fn clipped<const W: usize>(&self, y0: i64, y: i64, clip: Rect, f: i64, count: usize, out: &mut [f32]) {
         let first = ((y - f).max(clip.y0) - y0) as usize;
-        ring_column_sums(&self.ring, self.stride, self.cap, first, count, out);
+        ring_column_sums::<W>(&self.ring, self.stride, self.cap, first, count, out);
     }
 }
 
@@ -194,7 +194,7 @@ fn block_row(y: i64, t: i64) -> i64 {
 /// samples apart): `S = S_next + h` (`+` commutes exactly), the last row
 /// being its own suffix.
 #[inline(always)]
-fn suffix_rows(
+fn suffix_rows<const W: usize>(
     ring: &[f32],
     suffix: &mut [f32],
     last: usize,
@@ -208,11 +208,11 @@ fn suffix_rows(
         let at = s * stride;
         let h = &ring[at..at + w];
         if k == 0 {
-            rows_sum([&ring[last..last + w], h], &mut suffix[at..at + w]);
+            rows_sum::<W, 2>([&ring[last..last + w], h], &mut suffix[at..at + w]);
         } else {
             let from = if s + 1 == cap { 0 } else { s + 1 } * stride;
             let (next, out) = rows_pair(suffix, from, at, w);
-            rows_sum([next, h], out);
+            rows_sum::<W, 2>([next, h], out);
         }
         s = if s == 0 { cap - 1 } else { s - 1 };
     }
@@ -232,23 +232,23 @@ fn rows_pair(buf: &mut [f32], from: usize, to: usize, w: usize) -> (&[f32], &mut
 
 /// `a += b`.
 #[inline(always)]
-fn add_assign(a: &mut [f32], b: &[f32]) {
+fn add_assign<const W: usize>(a: &mut [f32], b: &[f32]) {
     let n = a.len();
     let b = &b[..n];
-    if n < CHUNK {
+    if n < W {
         for (x, y) in a.iter_mut().zip(b) {
             *x += *y;
         }
         return;
     }
     // Whole chunks, then the rest (an update in place: no overlapping chunk).
-    let whole = n / CHUNK * CHUNK;
-    for i in (0..whole).step_by(CHUNK) {
-        let (mut x, y) = (*chunk(a, i), chunk(b, i));
-        for k in 0..CHUNK {
+    let whole = n / W * W;
+    for i in (0..whole).step_by(W) {
+        let (mut x, y) = (*chunk::<W>(a, i), chunk::<W>(b, i));
+        for k in 0..W {
             x[k] += y[k];
         }
-        *chunk_mut(a, i) = x;
+        *chunk_mut::<W>(a, i) = x;
     }
     for i in whole..n {
         a[i] += b[i];
@@ -259,7 +259,14 @@ fn add_assign(a: &mut [f32], b: &[f32]) {
 /// order), where row `k` is stored in slot `k % cap` of `ring`, slots
 /// `stride` samples apart.
 #[inline(always)]
-pub(super) fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: usize, count: usize, out: &mut [f32]) {
+pub(super) fn ring_column_sums<const W: usize>(
+    ring: &[f32],
+    stride: usize,
+    cap: usize,
+    first: usize,
+    count: usize,
+    out: &mut [f32],
+) {
     let w = out.len();
     let row = |i: usize| {
         let slot = (first + i) % cap;
@@ -267,7 +274,7 @@ pub(super) fn ring_column_sums(ring: &[f32], stride: usize, cap: usize, first: u
     };
     out.copy_from_slice(row(0));
     for i in 1..count {
-        add_assign(out, row(i));
+        add_assign::<W>(out, row(i));
     }
 }
 
@@ -277,7 +284,25 @@ mod tests {
 
     /// Push rows `y0..y1` of `h` (row `y` = `h(y)`) and collect the window
     /// sums of every row whose window is complete, as the kernel does.
+    /// Every chunk width of the tiers gives the same bits.
     fn run(h: &dyn Fn(i64, usize) -> f32, w: usize, f: i64, y0: i64, y1: i64, clip: Rect) -> Vec<(i64, Vec<f32>)> {
+        use crate::filter::kernels::{CHUNK, CHUNK_AVX512};
+        let narrow = run_with::<CHUNK>(h, w, f, y0, y1, clip);
+        let bits = |v: &[(i64, Vec<f32>)]| {
+            v.iter().map(|(y, r)| (*y, r.iter().map(|x| x.to_bits()).collect::<Vec<_>>())).collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&run_with::<CHUNK_AVX512>(h, w, f, y0, y1, clip)), bits(&narrow), "chunk widths");
+        narrow
+    }
+
+    fn run_with<const W: usize>(
+        h: &dyn Fn(i64, usize) -> f32,
+        w: usize,
+        f: i64,
+        y0: i64,
+        y1: i64,
+        clip: Rect,
+    ) -> Vec<(i64, Vec<f32>)> {
         let cap = (2 * f + 1) as usize;
         let mut b = ColumnBox::new(w, cap);
         let mut out = Vec::new();
@@ -287,10 +312,10 @@ mod tests {
             for (i, v) in b.row_mut(y, y0, w).iter_mut().enumerate() {
                 *v = h(y, i);
             }
-            b.pushed(y, y0, w);
+            b.pushed::<W>(y, y0, w);
             while next < y1 && (next + f).min(clip.y1 - 1) <= y {
                 let mut o = vec![0.0; w];
-                b.sums(y0, next, clip, f, &mut o);
+                b.sums::<W>(y0, next, clip, f, &mut o);
                 out.push((next, o));
                 next += 1;
             }
@@ -333,7 +358,7 @@ mod tests {
     #[test]
     fn anchored_sums_match_their_expression_whatever_the_first_row() {
         for f in [0, 1, 2, 3, 5] {
-            for w in [5, 16, 37] {
+            for w in [5, 16, 37, 150] {
                 let clip = Rect { x0: 0, x1: w as i64, y0: -11, y1: 40 };
                 for y0 in [-11, -9, -4, 0, 3, 6] {
                     for (y, row) in run(&value, w, f, y0, clip.y1, clip) {

@@ -197,60 +197,68 @@ pub fn accumulate_colour_distance_pair(
     }
 }
 
-/// Samples per chunk of the row loops: one AVX-512 vector, two AVX2 ones.
+/// Samples per chunk of the row loops on the AVX2 and portable tiers: two
+/// AVX2 vectors.
 ///
-/// A row loop written over chunks compiles to whole vectors only: a row of
-/// `n >= CHUNK` samples is covered by the chunks starting at `0, CHUNK, ...`
-/// and a last one ending at `n`, which overlaps its predecessor (see
-/// [`chunk_start`]). For a loop whose output is not one of its inputs, or
-/// whose update is idempotent (a minimum), the overlapped samples get the
-/// same bits twice. The compiler's own vector loops end in a scalar loop of
-/// up to 32 samples, which on rows of a few hundred samples cost about as
-/// much as the vector part.
+/// A row loop written over chunks of `W` samples compiles to whole vectors
+/// only: a row of `n >= W` samples is covered by the chunks starting at
+/// `0, W, ...` and a last one ending at `n`, which overlaps its predecessor
+/// (see [`chunk_start`]). For a loop whose output is not one of its inputs,
+/// or whose update is idempotent (a minimum), the overlapped samples get the
+/// same bits twice, so the chunk width never changes a bit. The compiler's
+/// own vector loops end in a scalar loop of up to 32 samples, which on rows
+/// of a few hundred samples cost about as much as the vector part.
 pub const CHUNK: usize = 16;
 
-/// One chunk of samples.
-pub type Chunk = [f32; CHUNK];
+/// Samples per chunk on the AVX-512 tier: four AVX-512 vectors, so that the
+/// per-chunk integer work (the clamped start, the loop) is spread over four
+/// vectors' arithmetic. The AVX-512 tier has 32 vector registers; the AVX2
+/// tier's 16 spill with chunks wider than [`CHUNK`] (docs/performance.md,
+/// session 16).
+pub const CHUNK_AVX512: usize = 64;
 
-/// The number of chunks covering a row of `n >= CHUNK` samples.
+// The AVX-512 and half-float kernels (`taps7_sum_avx512`,
+// `feature_square_sum_half_*`) handle one 16-lane vector per chunk of `CHUNK`.
+const _: () = assert!(CHUNK == 16, "the 16-lane kernels need 16-sample chunks");
+
+/// The number of chunks of `W` samples covering a row of `n >= W` samples.
 #[inline(always)]
-pub fn chunk_count(n: usize) -> usize {
-    n.div_ceil(CHUNK)
+pub fn chunk_count<const W: usize>(n: usize) -> usize {
+    n.div_ceil(W)
 }
 
-/// Where chunk `c` of a row of `n >= CHUNK` samples starts: the last chunk
+/// Where chunk `c` of a row of `n >= W` samples starts: the last chunk
 /// ends at `n`.
 #[inline(always)]
-pub fn chunk_start(c: usize, n: usize) -> usize {
-    (c * CHUNK).min(n - CHUNK)
+pub fn chunk_start<const W: usize>(c: usize, n: usize) -> usize {
+    (c * W).min(n - W)
 }
 
-/// The chunk of `s` starting at `i`, which must be at most `s.len() - CHUNK`
-/// (debug builds check it; release builds clamp `i` to it).
+/// The chunk of `W` samples of `s` starting at `i`, which must be at most
+/// `s.len() - W` (debug builds check it; release builds clamp `i` to it).
 ///
 /// The clamp keeps this sound without a bounds check per chunk: in the
 /// chunk loops `i` is [`chunk_start`] of a row cut to `s.len()` samples, and
 /// the compiler folds the clamp into the one `chunk_start` already applies.
-/// What is left per call is the test `s.len() >= CHUNK`, the same for every
+/// What is left per call is the test `s.len() >= W`, the same for every
 /// chunk of a row.
 #[inline(always)]
-pub fn chunk(s: &[f32], i: usize) -> &Chunk {
-    debug_assert!(i + CHUNK <= s.len());
-    assert!(s.len() >= CHUNK, "a chunk is CHUNK samples");
-    let i = i.min(s.len() - CHUNK);
-    // SAFETY: `i + CHUNK <= s.len()`, and `Chunk` is `[f32; CHUNK]`, whose
-    // alignment is that of `f32`.
-    unsafe { &*s.as_ptr().add(i).cast::<Chunk>() }
+pub fn chunk<const W: usize>(s: &[f32], i: usize) -> &[f32; W] {
+    debug_assert!(i + W <= s.len());
+    assert!(s.len() >= W, "a chunk is W samples");
+    let i = i.min(s.len() - W);
+    // SAFETY: `i + W <= s.len()`, and `[f32; W]` has the alignment of `f32`.
+    unsafe { &*s.as_ptr().add(i).cast::<[f32; W]>() }
 }
 
 /// The chunk of `s` starting at `i`, to write (as [`chunk`]).
 #[inline(always)]
-pub fn chunk_mut(s: &mut [f32], i: usize) -> &mut Chunk {
-    debug_assert!(i + CHUNK <= s.len());
-    assert!(s.len() >= CHUNK, "a chunk is CHUNK samples");
-    let i = i.min(s.len() - CHUNK);
+pub fn chunk_mut<const W: usize>(s: &mut [f32], i: usize) -> &mut [f32; W] {
+    debug_assert!(i + W <= s.len());
+    assert!(s.len() >= W, "a chunk is W samples");
+    let i = i.min(s.len() - W);
     // SAFETY: as in `chunk`; `s` is borrowed mutably for the chunk's lifetime.
-    unsafe { &mut *s.as_mut_ptr().add(i).cast::<Chunk>() }
+    unsafe { &mut *s.as_mut_ptr().add(i).cast::<[f32; W]>() }
 }
 
 /// Each row of `rows` cut to its first `n` samples. A plain loop: the
@@ -268,9 +276,9 @@ pub fn cut<const N: usize>(rows: [&[f32]; N], n: usize) -> [&[f32]; N] {
 /// `out = ((rows[0] + rows[1]) + ...) + rows[T - 1]`, chunk by chunk (the last
 /// chunk overlaps its predecessor: `out` is not an input).
 #[inline(always)]
-pub fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
+pub fn rows_sum<const W: usize, const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
     let n = out.len();
-    if n < CHUNK {
+    if n < W {
         let rows = cut(rows, n);
         for (i, o) in out.iter_mut().enumerate() {
             let mut acc = rows[0][i];
@@ -281,16 +289,16 @@ pub fn rows_sum<const T: usize>(rows: [&[f32]; T], out: &mut [f32]) {
         }
         return;
     }
-    for c in 0..chunk_count(n) {
-        let i = chunk_start(c, n);
-        let mut acc = *chunk(rows[0], i);
+    for c in 0..chunk_count::<W>(n) {
+        let i = chunk_start::<W>(c, n);
+        let mut acc = *chunk::<W>(rows[0], i);
         for row in &rows[1..] {
-            let r = chunk(row, i);
-            for k in 0..CHUNK {
+            let r = chunk::<W>(row, i);
+            for k in 0..W {
                 acc[k] += r[k];
             }
         }
-        *chunk_mut(out, i) = acc;
+        *chunk_mut::<W>(out, i) = acc;
     }
 }
 
@@ -385,7 +393,7 @@ fn variance_term<const ALPHA_ONE: bool>(alpha: f32, s: f32, d2: f32) -> f32 {
 /// `alpha == 1`), the variance term `d2 - alpha s` is a subtraction instead
 /// of a fused multiply-add, with the same bits (see `variance_term`).
 #[inline(always)]
-pub fn colour_distance_pair_rgb<const ALPHA_ONE: bool>(
+pub fn colour_distance_pair_rgb<const W: usize, const ALPHA_ONE: bool>(
     fwd: &mut [f32],
     mir: &mut [f32],
     up: [&[f32]; 3],
@@ -408,7 +416,7 @@ pub fn colour_distance_pair_rgb<const ALPHA_ONE: bool>(
             variance_term::<ALPHA_ONE>(alpha, vq + m, d2).mul_add(r, b),
         )
     };
-    if n < CHUNK {
+    if n < W {
         for i in 0..n {
             let mut ab = (0.0f32, 0.0f32);
             for c in 0..3 {
@@ -418,16 +426,17 @@ pub fn colour_distance_pair_rgb<const ALPHA_ONE: bool>(
         }
         return;
     }
-    for ch in 0..chunk_count(n) {
-        let i = chunk_start(ch, n);
-        let (mut a, mut b) = ([0.0f32; CHUNK], [0.0f32; CHUNK]);
+    for ch in 0..chunk_count::<W>(n) {
+        let i = chunk_start::<W>(ch, n);
+        let (mut a, mut b) = ([0.0f32; W], [0.0f32; W]);
         for c in 0..3 {
-            let (up, uq, vp, vq) = (chunk(up[c], i), chunk(uq[c], i), chunk(vp[c], i), chunk(vq[c], i));
-            for k in 0..CHUNK {
+            let (up, uq, vp, vq) =
+                (chunk::<W>(up[c], i), chunk::<W>(uq[c], i), chunk::<W>(vp[c], i), chunk::<W>(vq[c], i));
+            for k in 0..W {
                 (a[k], b[k]) = step((a[k], b[k]), up[k], uq[k], vp[k], vq[k]);
             }
         }
-        (*chunk_mut(fwd, i), *chunk_mut(mir, i)) = (a, b);
+        (*chunk_mut::<W>(fwd, i), *chunk_mut::<W>(mir, i)) = (a, b);
     }
 }
 
@@ -461,7 +470,10 @@ pub struct FeatureRows<'a, const C: usize> {
 /// where `d_c = fp_c - fq_c`, every `+ x y` one fused multiply-add. All the
 /// channels are read in one pass, the sum kept in a register.
 #[inline(always)]
-pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], rows: &FeatureRows<'_, C>) {
+pub fn fold_feature_term<const W: usize, const C: usize, const FIRST: bool>(
+    out: &mut [f32],
+    rows: &FeatureRows<'_, C>,
+) {
     let n = out.len();
     let (fp, fq) = (cut(rows.fp, n), cut(rows.fq, n));
     let fold = |o: f32, t: f32| fold_min(if FIRST { 0.0 } else { o }, t);
@@ -469,25 +481,25 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
     match rows.var {
         None => {
             let inv = &rows.inv_den[0][..n];
-            if n < CHUNK {
+            if n < W {
                 for i in 0..n {
                     out[i] = fold(out[i], square_sum_at(&fp, &fq, i) * inv[i]);
                 }
                 return;
             }
-            for ch in 0..chunk_count(n) {
-                let i = chunk_start(ch, n);
-                let s = square_sum_chunk(&fp, &fq, i);
-                let (mut o, inv) = (*chunk(out, i), chunk(inv, i));
-                for k in 0..CHUNK {
+            for ch in 0..chunk_count::<W>(n) {
+                let i = chunk_start::<W>(ch, n);
+                let s = square_sum_chunk::<W, C>(&fp, &fq, i);
+                let (mut o, inv) = (*chunk::<W>(out, i), chunk::<W>(inv, i));
+                for k in 0..W {
                     o[k] = fold(o[k], s[k] * inv[k]);
                 }
-                *chunk_mut(out, i) = o;
+                *chunk_mut::<W>(out, i) = o;
             }
         }
         Some((vp, vq)) => {
             let (vp, vq, inv) = (cut(vp, n), cut(vq, n), cut(rows.inv_den, n));
-            if n < CHUNK {
+            if n < W {
                 for i in 0..n {
                     let mut a = 0.0f32;
                     for c in 0..C {
@@ -497,21 +509,21 @@ pub fn fold_feature_term<const C: usize, const FIRST: bool>(out: &mut [f32], row
                 }
                 return;
             }
-            for ch in 0..chunk_count(n) {
-                let i = chunk_start(ch, n);
-                let mut a = [0.0f32; CHUNK];
+            for ch in 0..chunk_count::<W>(n) {
+                let i = chunk_start::<W>(ch, n);
+                let mut a = [0.0f32; W];
                 for c in 0..C {
-                    let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
-                    let (x, y, v) = (chunk(vp[c], i), chunk(vq[c], i), chunk(inv[c], i));
-                    for k in 0..CHUNK {
+                    let (p, q) = (chunk::<W>(fp[c], i), chunk::<W>(fq[c], i));
+                    let (x, y, v) = (chunk::<W>(vp[c], i), chunk::<W>(vq[c], i), chunk::<W>(inv[c], i));
+                    for k in 0..W {
                         a[k] = variance_step(a[k], p[k], q[k], x[k], y[k], v[k]);
                     }
                 }
-                let mut o = *chunk(out, i);
-                for k in 0..CHUNK {
+                let mut o = *chunk::<W>(out, i);
+                for k in 0..W {
                     o[k] = fold(o[k], a[k]);
                 }
-                *chunk_mut(out, i) = o;
+                *chunk_mut::<W>(out, i) = o;
             }
         }
     }
@@ -546,18 +558,22 @@ pub fn fold_feature_term_any(
 /// variance. It is symmetric: the pair `(q, p)` gives the same bits (a
 /// difference only changes sign), so offsets `n` and `-n` share it.
 #[inline(always)]
-pub fn feature_square_sum<const C: usize>(out: &mut [f32], fp: ChannelRowsRef<'_, C>, fq: ChannelRowsRef<'_, C>) {
+pub fn feature_square_sum<const W: usize, const C: usize>(
+    out: &mut [f32],
+    fp: ChannelRowsRef<'_, C>,
+    fq: ChannelRowsRef<'_, C>,
+) {
     let n = out.len();
     let (fp, fq) = (cut(fp, n), cut(fq, n));
-    if n < CHUNK {
+    if n < W {
         for (i, o) in out.iter_mut().enumerate() {
             *o = square_sum_at(&fp, &fq, i);
         }
         return;
     }
-    for ch in 0..chunk_count(n) {
-        let i = chunk_start(ch, n);
-        *chunk_mut(out, i) = square_sum_chunk(&fp, &fq, i);
+    for ch in 0..chunk_count::<W>(n) {
+        let i = chunk_start::<W>(ch, n);
+        *chunk_mut::<W>(out, i) = square_sum_chunk::<W, C>(&fp, &fq, i);
     }
 }
 
@@ -614,8 +630,8 @@ pub unsafe fn feature_square_sum_half_avx512<const C: usize>(
         // the callers' `chunk_start`); an unaligned 32-byte load.
         unsafe { _mm512_cvtph_ps(_mm256_loadu_si256(row.as_ptr().add(i).cast())) }
     };
-    for ch in 0..chunk_count(n) {
-        let i = chunk_start(ch, n);
+    for ch in 0..chunk_count::<CHUNK>(n) {
+        let i = chunk_start::<CHUNK>(ch, n);
         let mut s = _mm512_setzero_ps();
         for c in 0..C {
             let d = _mm512_sub_ps(widen(p[c], i), widen(q[c], i));
@@ -650,8 +666,8 @@ pub unsafe fn feature_square_sum_half_avx2<const C: usize>(
         // `chunk_start` keeps `i + CHUNK <= n`); an unaligned 16-byte load.
         unsafe { _mm256_cvtph_ps(_mm_loadu_si128(row.as_ptr().add(i).cast())) }
     };
-    for ch in 0..chunk_count(n) {
-        let i = chunk_start(ch, n);
+    for ch in 0..chunk_count::<CHUNK>(n) {
+        let i = chunk_start::<CHUNK>(ch, n);
         for j in [i, i + CHUNK / 2] {
             let mut s = _mm256_setzero_ps();
             for c in 0..C {
@@ -676,11 +692,11 @@ fn square_sum_at<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -
 
 /// [`square_sum_at`] for the chunk starting at `i`.
 #[inline(always)]
-fn square_sum_chunk<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> Chunk {
-    let mut s = [0.0f32; CHUNK];
+fn square_sum_chunk<const W: usize, const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> [f32; W] {
+    let mut s = [0.0f32; W];
     for c in 0..C {
-        let (p, q) = (chunk(fp[c], i), chunk(fq[c], i));
-        for k in 0..CHUNK {
+        let (p, q) = (chunk::<W>(fp[c], i), chunk::<W>(fq[c], i));
+        for k in 0..W {
             s[k] = plain_step(s[k], p[k], q[k]);
         }
     }
@@ -703,26 +719,26 @@ pub const PRODUCTS_MAX: usize = 4;
 /// as [`fold_feature_term`] without variance for each guide in turn, given
 /// each `s_g` from [`feature_square_sum`].
 #[inline(always)]
-pub fn fold_feature_products(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
+pub fn fold_feature_products<const W: usize>(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
     assert_eq!(s.len(), inv.len(), "each guide's square sums have their factors");
     match s.len() {
-        1 => fold_products::<1>(out, s, inv, first),
-        2 => fold_products::<2>(out, s, inv, first),
-        3 => fold_products::<3>(out, s, inv, first),
-        4 => fold_products::<4>(out, s, inv, first),
+        1 => fold_products::<W, 1>(out, s, inv, first),
+        2 => fold_products::<W, 2>(out, s, inv, first),
+        3 => fold_products::<W, 3>(out, s, inv, first),
+        4 => fold_products::<W, 4>(out, s, inv, first),
         k => panic!("{k} guides in one pass (1 to PRODUCTS_MAX)"),
     }
 }
 
 /// [`fold_feature_products`] for `K` guides.
 #[inline(always)]
-fn fold_products<const K: usize>(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
+fn fold_products<const W: usize, const K: usize>(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], first: bool) {
     let n = out.len();
     let (mut sr, mut ir): ([&[f32]; K], [&[f32]; K]) = ([&[]; K], [&[]; K]);
     for g in 0..K {
         (sr[g], ir[g]) = (&s[g][..n], &inv[g][..n]);
     }
-    if n < CHUNK {
+    if n < W {
         for i in 0..n {
             let mut o = if first { 0.0 } else { out[i] };
             for g in 0..K {
@@ -733,16 +749,16 @@ fn fold_products<const K: usize>(out: &mut [f32], s: &[&[f32]], inv: &[&[f32]], 
         return;
     }
     // The fold is idempotent: an overlapping last chunk gives the same bits.
-    for ch in 0..chunk_count(n) {
-        let i = chunk_start(ch, n);
-        let mut o = if first { [0.0f32; CHUNK] } else { *chunk(out, i) };
+    for ch in 0..chunk_count::<W>(n) {
+        let i = chunk_start::<W>(ch, n);
+        let mut o = if first { [0.0f32; W] } else { *chunk::<W>(out, i) };
         for g in 0..K {
-            let (x, v) = (chunk(sr[g], i), chunk(ir[g], i));
-            for j in 0..CHUNK {
+            let (x, v) = (chunk::<W>(sr[g], i), chunk::<W>(ir[g], i));
+            for j in 0..W {
                 o[j] = fold_min(o[j], x[j] * v[j]);
             }
         }
-        *chunk_mut(out, i) = o;
+        *chunk_mut::<W>(out, i) = o;
     }
 }
 
@@ -818,7 +834,13 @@ mod tests {
             let rows: Vec<Vec<half::f16>> = (0..6).map(|_| (0..n).map(|_| next()).collect()).collect();
             let wide: Vec<Vec<f32>> = rows.iter().map(|r| r.iter().map(|h| h.to_f32()).collect()).collect();
             let mut want = vec![f32::NAN; n];
-            feature_square_sum::<3>(&mut want, [&wide[0], &wide[1], &wide[2]], [&wide[3], &wide[4], &wide[5]]);
+            feature_square_sum::<CHUNK, 3>(&mut want, [&wide[0], &wide[1], &wide[2]], [&wide[3], &wide[4], &wide[5]]);
+            // The AVX-512 tier's chunk width gives the same bits.
+            let mut wide_chunks = vec![f32::NAN; n];
+            let (p, q) = ([&wide[0][..], &wide[1], &wide[2]], [&wide[3][..], &wide[4], &wide[5]]);
+            feature_square_sum::<CHUNK_AVX512, 3>(&mut wide_chunks, p, q);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&wide_chunks), bits(&want), "n = {n}");
             for (name, kernel) in &kernels {
                 let mut got = vec![f32::NAN; n];
                 // SAFETY: the CPU features of each kernel were detected above.
@@ -885,8 +907,7 @@ mod tests {
     /// both match the formula in f64 (no variance: `inv * sum d^2`).
     #[test]
     fn feature_term_kernels_agree() {
-        fn check<const C: usize>() {
-            let n = 37;
+        fn check<const C: usize>(n: usize) {
             let rows_of = |seed: usize| -> Vec<Vec<f32>> {
                 (0..C)
                     .map(|c| (0..n).map(|i| (((i + 3 * c + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect())
@@ -915,12 +936,16 @@ mod tests {
                 let (svp, svq) = (sl(&vp), sl(&vq));
                 let var = with_var.then_some((&svp[..], &svq[..]));
                 for first in [true, false] {
-                    let (mut a, mut b) = (prior.clone(), prior.clone());
+                    let (mut a, mut b, mut c) = (prior.clone(), prior.clone(), prior.clone());
                     if first {
-                        fold_feature_term::<C, true>(&mut a, &rows);
+                        fold_feature_term::<CHUNK, C, true>(&mut a, &rows);
+                        fold_feature_term::<CHUNK_AVX512, C, true>(&mut c, &rows);
                     } else {
-                        fold_feature_term::<C, false>(&mut a, &rows);
+                        fold_feature_term::<CHUNK, C, false>(&mut a, &rows);
+                        fold_feature_term::<CHUNK_AVX512, C, false>(&mut c, &rows);
                     }
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&c), bits(&a), "chunk widths, C={C} var={with_var} first={first}");
                     fold_feature_term_any(&mut b, &sl(&fp), &sl(&fq), var, &sl(&inv), first);
                     for i in 0..n {
                         assert_eq!(a[i].to_bits(), b[i].to_bits(), "C={C} var={with_var} first={first} i={i}");
@@ -941,10 +966,13 @@ mod tests {
                 }
             }
         }
-        check::<1>();
-        check::<2>();
-        check::<3>();
-        check::<4>();
+        // Shorter than a chunk of either width, between them, and longer.
+        for n in [5, 37, 150] {
+            check::<1>(n);
+            check::<2>(n);
+            check::<3>(n);
+            check::<4>(n);
+        }
     }
 
     /// One pass over 1 to 4 guides' products gives the bits of one
@@ -952,7 +980,7 @@ mod tests {
     /// from [`feature_square_sum`]), on rows shorter and longer than a chunk.
     #[test]
     fn one_pass_products_match_a_fold_per_guide() {
-        for n in [5, 37] {
+        for n in [5, 37, 150] {
             let row = |seed: usize| -> Vec<f32> {
                 (0..n).map(|i| (((i + seed) * 7919) % 211) as f32 * 0.013 - 1.1).collect()
             };
@@ -966,21 +994,24 @@ mod tests {
                     let mut sums = Vec::new();
                     for (g, (p, q, inv)) in guides[..k].iter().enumerate() {
                         let mut s = vec![0.0; n];
-                        feature_square_sum::<1>(&mut s, [p], [q]);
+                        feature_square_sum::<CHUNK, 1>(&mut s, [p], [q]);
                         let rows = FeatureRows::<1> { fp: [p], fq: [q], var: None, inv_den: [inv] };
                         if first && g == 0 {
-                            fold_feature_term::<1, true>(&mut want, &rows);
+                            fold_feature_term::<CHUNK, 1, true>(&mut want, &rows);
                         } else {
-                            fold_feature_term::<1, false>(&mut want, &rows);
+                            fold_feature_term::<CHUNK, 1, false>(&mut want, &rows);
                         }
                         sums.push(s);
                     }
                     let mut got = prior.clone();
                     let s: Vec<&[f32]> = sums.iter().map(|s| &s[..]).collect();
                     let inv: Vec<&[f32]> = guides[..k].iter().map(|g| &g.2[..]).collect();
-                    fold_feature_products(&mut got, &s, &inv, first);
+                    fold_feature_products::<CHUNK>(&mut got, &s, &inv, first);
+                    let mut wide = prior.clone();
+                    fold_feature_products::<CHUNK_AVX512>(&mut wide, &s, &inv, first);
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert_eq!(bits(&got), bits(&want), "n={n} k={k} first={first}");
+                    assert_eq!(bits(&wide), bits(&want), "chunk width, n={n} k={k} first={first}");
                 }
             }
         }
@@ -1007,9 +1038,9 @@ mod tests {
                 assert!(sub.to_bits() == fma.to_bits() || (sub.is_nan() && fma.is_nan()), "s {s:e} d2 {d2:e}");
             }
         }
-        // The kernel: 40 samples (two chunks and an overlapping last one),
-        // variances non-negative as in the filter.
-        let n = 40;
+        // The kernel: 150 samples (for either chunk width, whole chunks and
+        // an overlapping last one), variances non-negative as in the filter.
+        let n = 150;
         let row = |k: usize, scale: f32| -> Vec<f32> {
             (0..n).map(|i| values[(i * 7 + k * 13) % values.len()].abs().min(1e6) * scale).collect()
         };
@@ -1018,17 +1049,22 @@ mod tests {
         fn refs(r: &[Vec<f32>], a: usize) -> [&[f32]; 3] {
             [&r[a], &r[a + 1], &r[a + 2]]
         }
-        let run = |one: bool| {
+        let run = |one: bool, wide: bool| {
             let (mut f, mut m) = (vec![0.0f32; n], vec![0.0f32; n]);
-            let args = (refs(&u, 0), refs(&u, 3), refs(&v, 0), refs(&v, 3));
-            if one {
-                colour_distance_pair_rgb::<true>(&mut f, &mut m, args.0, args.1, args.2, args.3, (1.0, 1e-10, 0.2025));
-            } else {
-                colour_distance_pair_rgb::<false>(&mut f, &mut m, args.0, args.1, args.2, args.3, (1.0, 1e-10, 0.2025));
+            let (up, uq, vp, vq) = (refs(&u, 0), refs(&u, 3), refs(&v, 0), refs(&v, 3));
+            let c = (1.0, 1e-10, 0.2025);
+            match (one, wide) {
+                (true, false) => colour_distance_pair_rgb::<CHUNK, true>(&mut f, &mut m, up, uq, vp, vq, c),
+                (false, false) => colour_distance_pair_rgb::<CHUNK, false>(&mut f, &mut m, up, uq, vp, vq, c),
+                (true, true) => colour_distance_pair_rgb::<CHUNK_AVX512, true>(&mut f, &mut m, up, uq, vp, vq, c),
+                (false, true) => colour_distance_pair_rgb::<CHUNK_AVX512, false>(&mut f, &mut m, up, uq, vp, vq, c),
             }
             f.iter().chain(&m).map(|x| x.to_bits()).collect::<Vec<_>>()
         };
-        assert_eq!(run(true), run(false));
+        assert_eq!(run(true, false), run(false, false));
+        // The AVX-512 tier's chunk width gives the same bits.
+        assert_eq!(run(true, true), run(false, false));
+        assert_eq!(run(false, true), run(false, false));
     }
 
     #[test]

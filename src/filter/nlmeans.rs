@@ -10,9 +10,9 @@ use rayon::prelude::*;
 
 use super::column_sums::ColumnBox;
 use super::kernels::{
-    CHUNK, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut, chunk_start,
-    colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any, fold_feature_products,
-    fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
+    CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut,
+    chunk_start, colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any,
+    fold_feature_products, fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512, taps7_sum_avx512};
@@ -166,13 +166,13 @@ fn filter_block(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `simd::current` returns AVX2 only when the CPU has avx2, fma and f16c.
         Tier::Avx2 => unsafe { filter_block_avx2(jobs, features, frame, block, s) },
-        _ => filter_block_body::<false, false>(jobs, features, frame, block, s),
+        _ => filter_block_body::<CHUNK, false, false>(jobs, features, frame, block, s),
     }
 }
 
 /// One wrapper per tier: the same body compiled with the tier's target feature.
 macro_rules! tier_wrapper {
-    ($name:ident, $feature:literal, $avx512:literal, $avx2:literal) => {
+    ($name:ident, $feature:literal, $chunk:expr, $avx512:literal, $avx2:literal) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $feature)]
         fn $name(
@@ -182,18 +182,21 @@ macro_rules! tier_wrapper {
             block: Rect,
             s: &NlmSettings,
         ) -> Vec<Vec<Plane>> {
-            filter_block_body::<$avx512, $avx2>(jobs, features, frame, block, s)
+            filter_block_body::<{ $chunk }, $avx512, $avx2>(jobs, features, frame, block, s)
         }
     };
 }
 
-tier_wrapper!(filter_block_avx2, "avx2,fma,f16c", false, true);
-tier_wrapper!(filter_block_avx512, "avx512f,fma", true, false);
+tier_wrapper!(filter_block_avx2, "avx2,fma,f16c", CHUNK, false, true);
+tier_wrapper!(filter_block_avx512, "avx512f,fma", CHUNK_AVX512, true, false);
 
 /// The block kernel; inlined into each tier's wrapper so that it (and every
 /// kernel it inlines) is compiled for that tier's instruction set. `AVX512`
 /// is true in the AVX-512 tier's wrapper only, `AVX2` in the AVX2 tier's
-/// only: they select the kernels written for one tier (the same bits).
+/// only: they select the kernels written for one tier (the same bits). `W`
+/// is the tier's chunk width for the row loops ([`CHUNK`], or
+/// [`CHUNK_AVX512`] on the AVX-512 tier): it changes which samples a loop
+/// iteration computes together, never a sample's operations.
 ///
 /// The offsets are visited as [`offset_schedule`] lists them: the centre,
 /// then steps of up to [`GROUP_MAX`] offsets `n` sharing `dy >= 0`, each
@@ -227,7 +230,7 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma", true, false);
 /// coordinate. The same operations for a pixel whichever block, tile or
 /// lane computes it.
 #[inline(always)]
-fn filter_block_body<const AVX512: bool, const AVX2: bool>(
+fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
     frame: Rect,
@@ -290,7 +293,7 @@ fn filter_block_body<const AVX512: bool, const AVX2: bool>(
                 }
             }
             let sides = [Side::new(&group[..g], dy, 0), Side::new(&[], -dy, dy)];
-            run_step::<AVX512, AVX2>(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
+            run_step::<W, AVX512, AVX2>(&ctx, &mut num, &mut den, sides, None, &mut lanes, &mut scratch);
             continue;
         }
         // Pairs `n = (dx, dy)` (dy >= 0) and `-n`: the terms the two distances
@@ -330,7 +333,7 @@ fn filter_block_body<const AVX512: bool, const AVX2: bool>(
             continue;
         }
         let sides = [Side::new(&fwd[..nf], dy, 0), Side::new(&mir[..nm], -dy, dy)];
-        run_step::<AVX512, AVX2>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
+        run_step::<W, AVX512, AVX2>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
     }
 
     num.into_iter()
@@ -442,7 +445,7 @@ fn in_rows(rows: (i64, i64), y: i64) -> bool {
 /// terms before the forward group's (`dy > 0`: the mirror reaches the row
 /// first; `dy = 0`: forward, then mirror), a fixed order for every block.
 #[inline(always)]
-fn run_step<const AVX512: bool, const AVX2: bool>(
+fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
     ctx: &StepCtx<'_, '_>,
     num: &mut [Vec<Aligned>],
     den: &mut [Aligned],
@@ -479,9 +482,9 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                         let (d_rect, w) = (lane.d, lane.d.width());
                         // The pair kernel with its mirror row discarded.
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
-                        distance_rows(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
+                        distance_rows::<W>(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
                         let buf = &mut bufs[lane_buf(j, 0, g)];
-                        push_h1::<AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
+                        push_h1::<W, AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
                     }
                 }
                 Some(pairs) => {
@@ -489,7 +492,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                         let (u, dx) = (pair.u, pair.dx);
                         let w = u.width();
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
-                        distance_rows(job, d, m, yd, dy, (u.x0, u.x1), dx, s, k2);
+                        distance_rows::<W>(job, d, m, yd, dy, (u.x0, u.x1), dx, s, k2);
                         // Row `d` holds pixels `p` from `u.x0`, row `m` pixels `p + n`.
                         for (si, row, x0, g) in [(0, &*d, u.x0, pair.fwd), (1, &*m, u.x0 + dx, pair.mir)] {
                             let side = &sides[si];
@@ -498,7 +501,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                             let lane = &side.lanes[g];
                             let from = (lane.d.x0 - x0) as usize;
                             let row = &row[from..from + lane.d.width()];
-                            push_h1::<AVX512>(
+                            push_h1::<W, AVX512>(
                                 lane,
                                 &mut bufs[lane_buf(j, si, g)],
                                 row,
@@ -517,7 +520,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
             let y = next_w;
             next_w += 1;
             if !features.is_empty() {
-                guide_rows::<AVX512, AVX2>(features, &sides, pairs, y, tf, square_sums);
+                guide_rows::<W, AVX512, AVX2>(features, &sides, pairs, y, tf, square_sums);
             }
             for (j, job) in jobs.iter().enumerate() {
                 // Channel mean and `-log2(e)`, folded into the patch mean's scale.
@@ -532,20 +535,20 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                         let ww = lane.w.width();
                         let (wr, wt) = (&mut wrow[..ww], &mut weights[..ww]);
                         // The window sums as one or two rows, added in the weight's loop.
-                        let (ny, head, tail) = buf.h1.window(side.d_y.0, yl, lane.valid, f, wr);
+                        let (ny, head, tail) = buf.h1.window::<W>(side.d_y.0, yl, lane.valid, f, wr);
                         // The patch mean's scale (with `kd`) applied inside the weight's loop.
                         let at = (lane.w.x0, lane.valid, f, ny, kd);
                         let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
                         match (features.is_empty(), tail) {
-                            (true, None) => weight_row::<false, false>([head, &[]], wt, guide, at),
-                            (true, Some(t)) => weight_row::<false, true>([head, t], wt, guide, at),
-                            (false, None) => weight_row::<true, false>([head, &[]], wt, guide, at),
-                            (false, Some(t)) => weight_row::<true, true>([head, t], wt, guide, at),
+                            (true, None) => weight_row::<W, false, false>([head, &[]], wt, guide, at),
+                            (true, Some(t)) => weight_row::<W, false, true>([head, t], wt, guide, at),
+                            (false, None) => weight_row::<W, true, false>([head, &[]], wt, guide, at),
+                            (false, Some(t)) => weight_row::<W, true, true>([head, t], wt, guide, at),
                         }
                         let aw = lane.acc.width();
                         let h2 = buf.h2.row_mut(yl, side.w_y.0, aw);
-                        window_sums_row::<AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
-                        buf.h2.pushed(yl, side.w_y.0, aw);
+                        window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
+                        buf.h2.pushed::<W>(yl, side.w_y.0, aw);
                     }
                 }
             }
@@ -578,7 +581,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                                 // and denominator share the factor, and it is exactly 1
                                 // where the window is not clipped (no multiply there).
                                 let mw = &mut buf.mean_w[..aw];
-                                let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
+                                let ny = buf.h2.sums::<W>(side.w_y.0, yl, lane.valid, f, mw);
                                 scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                             }
                         }
@@ -593,7 +596,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
                             };
                             *row = LaneRow { w, t: t.unwrap_or(&[]), x0: lane.acc.x0, dx: lane.dx };
                         }
-                        accumulate(
+                        accumulate::<W>(
                             &mut num[j],
                             &mut den[j],
                             &job.values,
@@ -615,7 +618,7 @@ fn run_step<const AVX512: bool, const AVX2: bool>(
 /// job's channels: `((0 + t_0) + t_1) + ...`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn distance_rows(
+fn distance_rows<const W: usize>(
     job: &Job<'_>,
     d: &mut [f32],
     m: &mut [f32],
@@ -633,9 +636,9 @@ fn distance_rows(
         let vq = [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)];
         let consts = (s.alpha, s.eps, k2);
         if s.alpha == 1.0 {
-            colour_distance_pair_rgb::<true>(d, m, up, uq, vp, vq, consts);
+            colour_distance_pair_rgb::<W, true>(d, m, up, uq, vp, vq, consts);
         } else {
-            colour_distance_pair_rgb::<false>(d, m, up, uq, vp, vq, consts);
+            colour_distance_pair_rgb::<W, false>(d, m, up, uq, vp, vq, consts);
         }
     } else {
         d.fill(0.0);
@@ -666,7 +669,7 @@ fn shifted(p: &Plane, y: i64, x: (i64, i64), dx: i64) -> &[f32] {
 /// the lane's first row of the step) as its horizontal window sums into
 /// the lane's box `h1`.
 #[inline(always)]
-fn push_h1<const AVX512: bool>(
+fn push_h1<const W: usize, const AVX512: bool>(
     lane: &Lane,
     buf: &mut LaneBuffers,
     d: &[f32],
@@ -676,8 +679,8 @@ fn push_h1<const AVX512: bool>(
     pairs: &mut [f32],
 ) {
     let ww = lane.w.width();
-    window_sums_row::<AVX512>(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
-    buf.h1.pushed(y, y0, ww);
+    window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
+    buf.h1.pushed::<W>(y, y0, ww);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -798,7 +801,7 @@ struct LaneRow<'a> {
 /// window (or f > 4) starts from its first sample and adds the others in
 /// increasing x. `src` starts at column `src_x0` and covers every window.
 #[inline(always)]
-fn window_sums_row<const AVX512: bool>(
+fn window_sums_row<const W: usize, const AVX512: bool>(
     src: &[f32],
     src_x0: i64,
     clip: Rect,
@@ -824,14 +827,14 @@ fn window_sums_row<const AVX512: bool>(
         let from = (inner_x0 - f - src_x0) as usize;
         let out = &mut dst[(inner_x0 - dst_x0) as usize..][..n];
         match f {
-            1 => pair_taps_sum::<1, 2>(&src[from..from + n + 2], pairs, out),
-            2 => pair_taps_sum::<2, 3>(&src[from..from + n + 4], pairs, out),
+            1 => pair_taps_sum::<W, 1, 2>(&src[from..from + n + 2], pairs, out),
+            2 => pair_taps_sum::<W, 2, 3>(&src[from..from + n + 4], pairs, out),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
             // which runs only on CPUs with avx512f.
             3 if AVX512 => unsafe { taps7_sum_avx512(&src[from..from + n + 6], out) },
-            3 => pair_taps_sum::<3, 4>(&src[from..from + n + 6], pairs, out),
-            4 => pair_taps_sum::<4, 5>(&src[from..from + n + 8], pairs, out),
+            3 => pair_taps_sum::<W, 3, 4>(&src[from..from + n + 6], pairs, out),
+            4 => pair_taps_sum::<W, 4, 5>(&src[from..from + n + 8], pairs, out),
             _ => {
                 for (i, o) in out.iter_mut().enumerate() {
                     let w = &src[from + i..=from + i + 2 * f as usize];
@@ -851,24 +854,24 @@ fn window_sums_row<const AVX512: bool>(
 /// (`F + 1` adds per output instead of `2F`, the pairs shared by neighbours):
 /// the [`rows_sum`] of `T = F + 1` rows, the pair rows and `src` shifted.
 #[inline(always)]
-fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
+fn pair_taps_sum<const W: usize, const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32], out: &mut [f32]) {
     const { assert!(T == F + 1) };
     let n = out.len();
     let m = n + 2 * F - 2;
     let (a, b) = (&src[..m], &src[1..m + 1]);
     let pairs = &mut pairs[..m];
-    if m < CHUNK {
+    if m < W {
         for (p, (x, y)) in pairs.iter_mut().zip(a.iter().zip(b)) {
             *p = *x + *y;
         }
     } else {
-        for c in 0..chunk_count(m) {
-            let i = chunk_start(c, m);
-            let (mut x, y) = (*chunk(a, i), chunk(b, i));
-            for k in 0..CHUNK {
+        for c in 0..chunk_count::<W>(m) {
+            let i = chunk_start::<W>(c, m);
+            let (mut x, y) = (*chunk::<W>(a, i), chunk::<W>(b, i));
+            for k in 0..W {
                 x[k] += y[k];
             }
-            *chunk_mut(pairs, i) = x;
+            *chunk_mut::<W>(pairs, i) = x;
         }
     }
     let pairs: &[f32] = pairs;
@@ -876,7 +879,7 @@ fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32],
     for (k, row) in rows.iter_mut().enumerate() {
         *row = if k < F { &pairs[2 * k..2 * k + n] } else { &src[2 * F..2 * F + n] };
     }
-    rows_sum::<T>(rows, out);
+    rows_sum::<W, T>(rows, out);
 }
 
 /// The weights of a row (columns from `x0`): `dst[i] = 2^t` with
@@ -885,7 +888,7 @@ fn pair_taps_sum<const F: usize, const T: usize>(src: &[f32], pairs: &mut [f32],
 /// argument by the patch mean's scale (as [`scale_by_count`]) in the same
 /// pass; with `GUIDED`, `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
 #[inline(always)]
-fn weight_row<const GUIDED: bool, const SPLIT: bool>(
+fn weight_row<const W: usize, const GUIDED: bool, const SPLIT: bool>(
     [head, tail]: [&[f32]; 2],
     dst: &mut [f32],
     tf: &[f32],
@@ -900,25 +903,25 @@ fn weight_row<const GUIDED: bool, const SPLIT: bool>(
     let (unclipped, clipped) = window_columns(x0, n, clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
     let (u0, len) = (unclipped.start, unclipped.len());
-    if len < CHUNK {
+    if len < W {
         for i in unclipped {
             dst[i] = weight(sum(i) * inner, guide(i));
         }
     } else {
-        for c in 0..chunk_count(len) {
-            let i = u0 + chunk_start(c, len);
-            let (mut s, g) = (*chunk(head, i), if GUIDED { *chunk(tf, i) } else { [0.0; CHUNK] });
+        for c in 0..chunk_count::<W>(len) {
+            let i = u0 + chunk_start::<W>(c, len);
+            let (mut s, g) = (*chunk::<W>(head, i), if GUIDED { *chunk::<W>(tf, i) } else { [0.0; W] });
             if SPLIT {
-                let t = chunk(tail, i);
-                for j in 0..CHUNK {
+                let t = chunk::<W>(tail, i);
+                for j in 0..W {
                     s[j] += t[j];
                 }
             }
-            let mut o = [0.0f32; CHUNK];
-            for j in 0..CHUNK {
+            let mut o = [0.0f32; W];
+            for j in 0..W {
                 o[j] = weight(s[j] * inner, g[j]);
             }
-            *chunk_mut(dst, i) = o;
+            *chunk_mut::<W>(dst, i) = o;
         }
     }
     for (i, nx) in clipped {
@@ -952,7 +955,7 @@ fn window_columns(
 /// whichever loop handles the pixel, so the result equals accumulating the
 /// offsets one after the other.
 #[inline(always)]
-fn accumulate(
+fn accumulate<const W: usize>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
@@ -987,14 +990,14 @@ fn accumulate(
         // Every lane's row is split alike (the same window rows), and only
         // with three channels.
         match (rows.len(), rows[0].t.is_empty()) {
-            (1, true) => accumulate_span::<1, false>(num, den, values, rows, at),
-            (2, true) => accumulate_span::<2, false>(num, den, values, rows, at),
-            (3, true) => accumulate_span::<3, false>(num, den, values, rows, at),
-            (_, true) => accumulate_span::<GROUP_MAX, false>(num, den, values, rows, at),
-            (1, false) => accumulate_span::<1, true>(num, den, values, rows, at),
-            (2, false) => accumulate_span::<2, true>(num, den, values, rows, at),
-            (3, false) => accumulate_span::<3, true>(num, den, values, rows, at),
-            (_, false) => accumulate_span::<GROUP_MAX, true>(num, den, values, rows, at),
+            (1, true) => accumulate_span::<W, 1, false>(num, den, values, rows, at),
+            (2, true) => accumulate_span::<W, 2, false>(num, den, values, rows, at),
+            (3, true) => accumulate_span::<W, 3, false>(num, den, values, rows, at),
+            (_, true) => accumulate_span::<W, GROUP_MAX, false>(num, den, values, rows, at),
+            (1, false) => accumulate_span::<W, 1, true>(num, den, values, rows, at),
+            (2, false) => accumulate_span::<W, 2, true>(num, den, values, rows, at),
+            (3, false) => accumulate_span::<W, 3, true>(num, den, values, rows, at),
+            (_, false) => accumulate_span::<W, GROUP_MAX, true>(num, den, values, rows, at),
         }
     }
 }
@@ -1003,7 +1006,7 @@ fn accumulate(
 /// (with `SPLIT`, each lane's weights are `w + t`: three channels only).
 #[inline(always)]
 #[allow(clippy::type_complexity)]
-fn accumulate_span<const G: usize, const SPLIT: bool>(
+fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
@@ -1024,7 +1027,7 @@ fn accumulate_span<const G: usize, const SPLIT: bool>(
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
         let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
-        fused_rgb::<G, SPLIT>([d, n0, n1, n2], [w, t], [q(0), q(1), q(2)]);
+        fused_rgb::<W, G, SPLIT>([d, n0, n1, n2], [w, t], [q(0), q(1), q(2)]);
     } else {
         assert!(!SPLIT, "split weights with three channels only");
         for i in 0..n {
@@ -1060,7 +1063,7 @@ fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i6
 /// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
 /// (separate `&mut` arguments: the compiler knows they do not alias).
 #[inline(always)]
-fn fused_rgb<const G: usize, const SPLIT: bool>(
+fn fused_rgb<const W: usize, const G: usize, const SPLIT: bool>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
     [w, t]: [[&[f32]; G]; 2],
     [q0, q1, q2]: [[&[f32]; G]; 3],
@@ -1071,26 +1074,29 @@ fn fused_rgb<const G: usize, const SPLIT: bool>(
     let t = if SPLIT { cut(t, n) } else { t };
     // Whole chunks (an update in place: no overlapping last chunk), then
     // the remaining samples one by one with the same operations.
-    let whole = n / CHUNK * CHUNK;
-    for c in 0..whole / CHUNK {
-        let i = c * CHUNK;
-        let (mut dd, mut a0, mut a1, mut a2) = (*chunk(d, i), *chunk(n0, i), *chunk(n1, i), *chunk(n2, i));
+    let whole = n / W * W;
+    for c in 0..whole / W {
+        let i = c * W;
+        let (mut dd, mut a0, mut a1, mut a2) =
+            (*chunk::<W>(d, i), *chunk::<W>(n0, i), *chunk::<W>(n1, i), *chunk::<W>(n2, i));
         for g in 0..G {
-            let (mut wg, x0, x1, x2) = (*chunk(w[g], i), chunk(q0[g], i), chunk(q1[g], i), chunk(q2[g], i));
+            let (mut wg, x0, x1, x2) =
+                (*chunk::<W>(w[g], i), chunk::<W>(q0[g], i), chunk::<W>(q1[g], i), chunk::<W>(q2[g], i));
             if SPLIT {
-                let tg = chunk(t[g], i);
-                for k in 0..CHUNK {
+                let tg = chunk::<W>(t[g], i);
+                for k in 0..W {
                     wg[k] += tg[k];
                 }
             }
-            for k in 0..CHUNK {
+            for k in 0..W {
                 dd[k] += wg[k];
                 a0[k] = wg[k].mul_add(x0[k], a0[k]);
                 a1[k] = wg[k].mul_add(x1[k], a1[k]);
                 a2[k] = wg[k].mul_add(x2[k], a2[k]);
             }
         }
-        (*chunk_mut(d, i), *chunk_mut(n0, i), *chunk_mut(n1, i), *chunk_mut(n2, i)) = (dd, a0, a1, a2);
+        (*chunk_mut::<W>(d, i), *chunk_mut::<W>(n0, i), *chunk_mut::<W>(n1, i), *chunk_mut::<W>(n2, i)) =
+            (dd, a0, a1, a2);
     }
     for i in whole..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
@@ -1128,7 +1134,7 @@ fn scale_by_count(row: &mut [f32], x0: i64, clip: Rect, f: i64, ny: f32, k: f32)
 /// into `tf[s * GROUP_MAX + g]`; each feature's `inv_den` already holds
 /// `-log2(e) / channels`): one pass per feature and row, folded by a minimum.
 #[inline(always)]
-fn guide_rows<const AVX512: bool, const AVX2: bool>(
+fn guide_rows<const W: usize, const AVX512: bool, const AVX2: bool>(
     features: &[GuideFeature],
     sides: &[Side<'_>; 2],
     pairs: Option<&[PairLane]>,
@@ -1145,7 +1151,7 @@ fn guide_rows<const AVX512: bool, const AVX2: bool>(
             for (lane, row) in sides[0].lanes.iter().zip(tf.iter_mut()) {
                 let row = &mut row[..lane.w.width()];
                 for (j, feat) in features.iter().enumerate() {
-                    fold_feature_row(row, feat, (y, dy, lane.w.x0, lane.w.x1, lane.dx, j == 0));
+                    fold_feature_row::<W>(row, feat, (y, dy, lane.w.x0, lane.w.x1, lane.dx, j == 0));
                 }
             }
         }
@@ -1161,7 +1167,7 @@ fn guide_rows<const AVX512: bool, const AVX2: bool>(
                     Some(g) if mir_row => Some((sides[1].lanes[g].w, &mut *tf_mir[g])),
                     _ => None,
                 };
-                pair_feature_row::<AVX512, AVX2>(features, (pair.dx, dy), y, fwd, mir, square_sums);
+                pair_feature_row::<W, AVX512, AVX2>(features, (pair.dx, dy), y, fwd, mir, square_sums);
             }
         }
     }
@@ -1170,13 +1176,13 @@ fn guide_rows<const AVX512: bool, const AVX2: bool>(
 /// One feature's [`fold_feature_term`] on row `y` (columns `x0..x1`) for
 /// offset `(dx, dy)`, into `out` (from 0 when `first`).
 #[inline(always)]
-fn fold_feature_row(out: &mut [f32], feat: &GuideFeature, at: (i64, i64, i64, i64, i64, bool)) {
+fn fold_feature_row<const W: usize>(out: &mut [f32], feat: &GuideFeature, at: (i64, i64, i64, i64, i64, bool)) {
     let (y, dy, x0, x1, dx, first) = at;
     match feat.values.len() {
-        1 => fold_feature_rows::<1>(out, feat, at),
-        2 => fold_feature_rows::<2>(out, feat, at),
-        3 => fold_feature_rows::<3>(out, feat, at),
-        4 => fold_feature_rows::<4>(out, feat, at),
+        1 => fold_feature_rows::<W, 1>(out, feat, at),
+        2 => fold_feature_rows::<W, 2>(out, feat, at),
+        3 => fold_feature_rows::<W, 3>(out, feat, at),
+        4 => fold_feature_rows::<W, 4>(out, feat, at),
         _ => {
             let (fp, fq) = (all_rows(&feat.values, y, x0, x1), all_rows(&feat.values, y + dy, x0 + dx, x1 + dx));
             let var = feat.variance.as_ref().map(|v| (all_rows(v, y, x0, x1), all_rows(v, y + dy, x0 + dx, x1 + dx)));
@@ -1190,7 +1196,7 @@ fn fold_feature_row(out: &mut [f32], feat: &GuideFeature, at: (i64, i64, i64, i6
 /// One feature's [`fold_feature_term`] on row `y` (columns `x0..x1`) for
 /// offset `(dx, dy)`, the feature's `C` channels as arrays.
 #[inline(always)]
-fn fold_feature_rows<const C: usize>(
+fn fold_feature_rows<const W: usize, const C: usize>(
     out: &mut [f32],
     feat: &GuideFeature,
     (y, dy, x0, x1, dx, first): (i64, i64, i64, i64, i64, bool),
@@ -1213,7 +1219,7 @@ fn fold_feature_rows<const C: usize>(
             inv
         },
     };
-    if first { fold_feature_term::<C, true>(out, &rows) } else { fold_feature_term::<C, false>(out, &rows) }
+    if first { fold_feature_term::<W, C, true>(out, &rows) } else { fold_feature_term::<W, C, false>(out, &rows) }
 }
 
 /// The guides' weight argument of the offsets `n = (dx, dy)` and `-n`
@@ -1226,7 +1232,7 @@ fn fold_feature_rows<const C: usize>(
 /// lane's terms as [`fold_feature_row`] does. `square_sums` holds one row
 /// per guide.
 #[inline(always)]
-fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
+fn pair_feature_row<const W: usize, const AVX512: bool, const AVX2: bool>(
     features: &[GuideFeature],
     (dx, dy): (i64, i64),
     y: i64,
@@ -1247,10 +1253,10 @@ fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
         let out = &mut square_sums[j * w..(j + 1) * w];
         let at = (y, dy, x0, x1, dx);
         match feat.values.len() {
-            1 => square_sum_rows::<1, AVX512, AVX2>(out, feat, at),
-            2 => square_sum_rows::<2, AVX512, AVX2>(out, feat, at),
-            3 => square_sum_rows::<3, AVX512, AVX2>(out, feat, at),
-            4 => square_sum_rows::<4, AVX512, AVX2>(out, feat, at),
+            1 => square_sum_rows::<W, 1, AVX512, AVX2>(out, feat, at),
+            2 => square_sum_rows::<W, 2, AVX512, AVX2>(out, feat, at),
+            3 => square_sum_rows::<W, 3, AVX512, AVX2>(out, feat, at),
+            4 => square_sum_rows::<W, 4, AVX512, AVX2>(out, feat, at),
             _ => {
                 let fp = all_rows(&feat.values, y, x0, x1);
                 let fq = all_rows(&feat.values, y + dy, x0 + dx, x1 + dx);
@@ -1269,7 +1275,7 @@ fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
         let (ly, ldx, ldy, from) = if mirror { (y + dy, -dx, -dy, r.x0 - dx - x0) } else { (y, dx, dy, r.x0 - x0) };
         let mut first = true;
         for feat in features.iter().filter(|f| f.variance.is_some()) {
-            fold_feature_row(row, feat, (ly, ldy, r.x0, r.x1, ldx, first));
+            fold_feature_row::<W>(row, feat, (ly, ldy, r.x0, r.x1, ldx, first));
             first = false;
         }
         let (mut sums, mut invs) = ([&[][..]; PRODUCTS_MAX], [&[][..]; PRODUCTS_MAX]);
@@ -1279,12 +1285,12 @@ fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
             invs[k] = feat.inv_den[0].row(ly, r.x0, r.x1);
             k += 1;
             if k == PRODUCTS_MAX {
-                fold_feature_products(row, &sums, &invs, first);
+                fold_feature_products::<W>(row, &sums, &invs, first);
                 (k, first) = (0, false);
             }
         }
         if k > 0 {
-            fold_feature_products(row, &sums[..k], &invs[..k], first);
+            fold_feature_products::<W>(row, &sums[..k], &invs[..k], first);
         }
     }
 }
@@ -1293,7 +1299,7 @@ fn pair_feature_row<const AVX512: bool, const AVX2: bool>(
 /// offset `(dx, dy)`, the feature's `C` channels as arrays; on the AVX-512
 /// tier from its half floats when it has them (the same bits).
 #[inline(always)]
-fn square_sum_rows<const C: usize, const AVX512: bool, const AVX2: bool>(
+fn square_sum_rows<const W: usize, const C: usize, const AVX512: bool, const AVX2: bool>(
     out: &mut [f32],
     feat: &GuideFeature,
     (y, dy, x0, x1, dx): (i64, i64, i64, i64, i64),
@@ -1315,7 +1321,7 @@ fn square_sum_rows<const C: usize, const AVX512: bool, const AVX2: bool>(
         }
         return;
     }
-    feature_square_sum::<C>(
+    feature_square_sum::<W, C>(
         out,
         channel_rows(&feat.values, y, x0, x1),
         channel_rows(&feat.values, y + dy, x0 + dx, x1 + dx),
