@@ -205,7 +205,10 @@ pub fn accumulate_colour_distance_pair(
 /// `0, W, ...` and a last one ending at `n`, which overlaps its predecessor
 /// (see [`chunk_start`]). For a loop whose output is not one of its inputs,
 /// or whose update is idempotent (a minimum), the overlapped samples get the
-/// same bits twice, so the chunk width never changes a bit. The compiler's
+/// same bits twice; an in-place update runs whole chunks, then the rest one
+/// sample at a time. Every sample gets the same operations whichever chunk,
+/// or the scalar rest, computes it, so the chunk width never changes a bit
+/// (the AVX-512 tier uses [`CHUNK_AVX512`]). The compiler's
 /// own vector loops end in a scalar loop of up to 32 samples, which on rows
 /// of a few hundred samples cost about as much as the vector part.
 pub const CHUNK: usize = 16;

@@ -4,11 +4,13 @@
 //! Every tier compiles the *same* Rust code (`nlmeans::filter_block_body`)
 //! with a different set of target features, so every pixel gets the same
 //! IEEE operations in the same order whichever tier or lane computes it: the
-//! wider tiers only put more pixels in a register (and the AVX-512 tier walks
-//! its rows in chunks of `kernels::CHUNK_AVX512` samples, not `CHUNK`). Two kernels are written
-//! for the AVX-512 tier, each computing the same expression of the same
-//! samples: `kernels::taps7_sum_avx512` (the horizontal window sums for
-//! `f = 3`) forms the shifted operands in registers instead of loading them,
+//! wider tiers only put more pixels in a register, and the AVX-512 tier walks
+//! its rows in chunks of `kernels::CHUNK_AVX512` samples instead of
+//! `kernels::CHUNK`, which changes which samples one loop iteration computes,
+//! never their operations. Two kernels are written for the AVX-512 tier,
+//! each computing the same expression of the same samples:
+//! `kernels::taps7_sum_avx512` (the horizontal window sums for `f = 3`)
+//! forms the shifted operands in registers instead of loading them,
 //! and `kernels::feature_square_sum_half_avx512` reads a guide stored as
 //! exact half floats, widened exactly (as the AVX2 tier's
 //! `kernels::feature_square_sum_half_avx2` does, 8 at a time). The kernel's
