@@ -22,6 +22,10 @@
 //!
 //! A window clipped by the offset's valid rectangle adds its rows in
 //! increasing order from the ring of the last `T` rows.
+//!
+//! The methods that add rows take the tier's chunk width `W` of the row
+//! loops (`kernels::CHUNK`, or `kernels::CHUNK_AVX512`), which changes no
+//! bit (the tests compare both).
 
 use super::kernels::{chunk, chunk_mut, rows_sum};
 use super::nlmeans::{Aligned, stride};
