@@ -48,7 +48,7 @@ fn main() {
         .map(|(name, half)| SinkChannel { name, kind: if half { SampleKind::F16 } else { SampleKind::F32 } })
         .collect();
     let all: Vec<usize> = (0..channels.len()).collect();
-    let result = ExrSink::create(&out, frame, &channels, compression, None).and_then(|mut sink| {
+    let result = ExrSink::create(&out, frame, &channels, compression, None, 0).and_then(|mut sink| {
         for band in frame.row_bands(64) {
             sink.write_rows(source.read_rows(&all, band)?)?;
         }

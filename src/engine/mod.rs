@@ -198,7 +198,7 @@ fn plan_with(
             out_block_rows: opts.out_block_rows,
             threads,
             // The EXR sink encodes on as many threads of its own
-            // (`ExrSink::create_with_threads`, as `api` creates it).
+            // (the `threads` of `ExrSink::create`, as `api` creates it).
             writer_threads: threads,
             kernel: ScratchShape {
                 search_radius: params.search_radius,

@@ -367,21 +367,10 @@ pub struct ExrSink {
 impl ExrSink {
     /// Create the sink. `template` provides attributes to copy (display window,
     /// layer attributes, ...); the data window, channels and encoding are set here.
+    /// The writer compresses blocks on `threads` threads of its own (0 = one
+    /// per core): behind `engine::denoise_stream`, pass the engine's thread
+    /// count, which `engine::budget` counts one encoder scratch for each.
     pub fn create(
-        path: &Path,
-        data_window: Rect,
-        channels: &[SinkChannel],
-        compression: OutputCompression,
-        template: Option<&Header>,
-    ) -> Result<ExrSink, Error> {
-        ExrSink::create_with_threads(path, data_window, channels, compression, template, 0)
-    }
-
-    /// [`ExrSink::create`] whose writer compresses blocks on `threads`
-    /// threads of its own (0 = one per core), so that a `--threads` limit
-    /// holds for the writer too (`engine::budget` counts one scratch per
-    /// encoder thread).
-    pub fn create_with_threads(
         path: &Path,
         data_window: Rect,
         channels: &[SinkChannel],
