@@ -215,9 +215,9 @@ pub const CHUNK: usize = 16;
 
 /// Samples per chunk on the AVX-512 tier: four AVX-512 vectors, so that the
 /// per-chunk integer work (the clamped start, the loop) is spread over four
-/// vectors' arithmetic. The AVX-512 tier has 32 vector registers; the AVX2
-/// tier's 16 spill with chunks wider than [`CHUNK`] (docs/performance.md,
-/// session 16).
+/// vectors' arithmetic. The AVX2 tier measured slower with chunks wider
+/// than [`CHUNK`] (it has 16 vector registers to AVX-512's 32;
+/// docs/performance.md, session 16).
 pub const CHUNK_AVX512: usize = 64;
 
 // The AVX-512 and half-float kernels (`taps7_sum_avx512`,
