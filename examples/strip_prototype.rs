@@ -118,13 +118,25 @@ mod strip {
         let (k2, eps) = (_mm512_set1_ps(k2), _mm512_set1_ps(1e-10));
         let kd = _mm512_set1_ps(-std::f32::consts::LOG2_E / 3.0 / ((2 * F + 1) * (2 * F + 1)) as f32);
         let (f, y_first, y_end) = (F as i64, by0 as i64 - 2 * F as i64, (by0 + bh) as i64 + 2 * F as i64);
-        // Samples `at..at + 16` of `p`.
+        // Every read, checked once: the lowest and the highest sample any
+        // offset's distances or accumulation read (the distances' last
+        // vector runs up to 32 - 2f columns past the block).
+        let (reach, len) = (r + 2 * f, img.u.iter().chain(&img.v).map(Vec::len).min().unwrap_or(0) as i64);
+        let lowest = (y_first - r) * w + bx0 as i64 - reach;
+        let highest = (y_end - 1 + r) * w + (bx0 + bw) as i64 + 32 - 2 * f + r + 16;
+        assert!(lowest >= 0 && highest <= len, "the block with its border inside the frame");
+        assert!(num.iter().all(|n| n.len() >= bw * bh) && den.len() >= bw * bh, "block-sized accumulators");
+        let (u, v) = (img.u.each_ref().map(|p| p.as_ptr()), img.v.each_ref().map(|p| p.as_ptr()));
+        let (nums, dens) = (num.each_mut().map(|n| n.as_mut_ptr()), den.as_mut_ptr());
+        // Samples `at..at + 16` of plane `p` (pointers hoisted: the
+        // compiler would otherwise reload each plane's pointer and length
+        // for every vector).
         macro_rules! load {
             ($p:expr, $at:expr) => {{
-                let (p, at): (&[f32], i64) = ($p, $at);
-                assert!(at >= 0 && at as usize + 16 <= p.len(), "a read inside the frame");
-                // SAFETY: checked just above.
-                unsafe { _mm512_loadu_ps(p.as_ptr().add(at as usize)) }
+                let (p, at): (*const f32, i64) = ($p, $at);
+                debug_assert!(lowest <= at && at + 16 <= highest);
+                // SAFETY: `lowest <= at` and `at + 16 <= highest`, checked above.
+                unsafe { _mm512_loadu_ps(p.offset(at as isize)) }
             }};
         }
         for dy in -r..=r {
@@ -141,8 +153,8 @@ mod strip {
                             let q = p + dy * w + dx;
                             let mut acc = _mm512_setzero_ps();
                             for c in 0..3 {
-                                let (up, uq) = (load!(&img.u[c], p), load!(&img.u[c], q));
-                                let (vp, vq) = (load!(&img.v[c], p), load!(&img.v[c], q));
+                                let (up, uq) = (load!(u[c], p), load!(u[c], q));
+                                let (vp, vq) = (load!(v[c], p), load!(v[c], q));
                                 let d = _mm512_sub_ps(up, uq);
                                 let m = _mm512_min_ps(vq, vp);
                                 let rr = recip(_mm512_fmadd_ps(k2, _mm512_add_ps(vp, vq), eps));
@@ -179,14 +191,15 @@ mod strip {
                             let x = sx + 16 * j;
                             let o = (ya as usize - by0) * bw + (x - bx0);
                             let q = (ya + dy) * w + x as i64 + dx;
-                            let u = [load!(&img.u[0], q), load!(&img.u[1], q), load!(&img.u[2], q)];
-                            assert!(o + 16 <= den.len(), "a block-sized accumulator");
-                            // SAFETY: `o + 16 <= bw * bh`, checked just above.
+                            let uq = [load!(u[0], q), load!(u[1], q), load!(u[2], q)];
+                            debug_assert!(o + 16 <= bw * bh);
+                            // SAFETY: `o + 16 <= bw * bh` (`x + 16 <= bx0 + bw`,
+                            // `ya < by0 + bh`), within the accumulators, checked above.
                             unsafe {
-                                let dp = den.as_mut_ptr().add(o);
+                                let dp = dens.add(o);
                                 _mm512_storeu_ps(dp, _mm512_add_ps(_mm512_loadu_ps(dp), wt));
-                                for (c, uc) in u.iter().enumerate() {
-                                    let np = num[c].as_mut_ptr().add(o);
+                                for (np, uc) in nums.iter().zip(&uq) {
+                                    let np = np.add(o);
                                     _mm512_storeu_ps(np, _mm512_fmadd_ps(wt, *uc, _mm512_loadu_ps(np)));
                                 }
                             }
