@@ -4,6 +4,7 @@
 #
 #   bash benches/instructions.sh [TIMING_BINARY...]
 #   MODES="colour layers features full" bash benches/instructions.sh ...
+#   SIZE="960 256" BYFILE=1 MODES=full bash benches/instructions.sh ...
 #
 # Runs `examples/timing` (colour-only and full, or the modes in MODES;
 # 480x272, r=10, 1 thread, one run) under `valgrind --tool=callgrind` on
@@ -11,7 +12,9 @@
 # the instructions of the whole process and of the block kernel alone
 # (`filter_block_avx2` and what it calls). Without arguments it builds and
 # measures the working tree; given timing binaries (e.g. one built from an
-# older commit), it measures each. Needs valgrind (apt-get install
+# older commit), it measures each. SIZE sets the frame (default
+# "480 272"); BYFILE=1 adds the kernel's own counts by source file.
+# Needs valgrind (apt-get install
 # valgrind). Several minutes per binary for the two default modes (session
 # 11: 3 minutes for colour alone); all four take about twice as long, by
 # their instruction counts.
@@ -30,11 +33,19 @@ for bin in "$@"; do
   for mode in ${MODES:-colour full}; do
     log="$out/$mode.log"
     NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/$mode.cg" \
-      "$bin" "$mode" 480 272 1 10 1 >"$log" 2>&1
+      "$bin" "$mode" ${SIZE:-480 272} 1 10 1 >"$log" 2>&1
     process=$(grep -m1 'refs:' "$log" | awk '{print $NF}')
     # Inclusive count of the kernel: callgrind_annotate's inclusive column.
     callgrind_annotate --inclusive=yes "$out/$mode.cg" >"$out/$mode.txt" 2>/dev/null
     kernel=$(awk '/filter_block_avx2 /{print $1; exit}' "$out/$mode.txt")
     printf '%-40s %-7s %15s %15s\n' "$bin" "$mode" "$process" "${kernel:-?}"
+    if [ "${BYFILE:-0}" = 1 ]; then
+      # The kernel's own (exclusive) counts by the source file its inlined
+      # code comes from: its row loops (kernels.rs), its set-up (nlmeans.rs),
+      # the standard library's helpers (cmp.rs, uint_macros.rs, ...).
+      callgrind_annotate --show-percs=no "$out/$mode.cg" 2>/dev/null \
+        | awk '/:nldenoise::filter::nlmeans::filter_block_avx2/ { split($2, f, ":"); n = split(f[1], p, "/"); print "    " $1, p[n] }' \
+        | head -12
+    fi
   done
 done

@@ -17,6 +17,9 @@
 //!
 //!   cargo run --release --example strip_prototype [S] [WIDTH] [HEIGHT] [RUNS]
 //!
+//! S (output vectors per strip) is 1, 2, 4 (the default) or 7; the frame
+//! is 960x540 by default, at least 480 wide.
+//!
 //! It prints the best of RUNS times for the prototype and for the library's
 //! kernel (`filter::nlmeans::nlmeans`, one thread) on the same interior
 //! region of a random frame, in ns per pixel-offset, and the largest
@@ -222,6 +225,10 @@ fn main() {
     let a: Vec<String> = std::env::args().skip(1).collect();
     let arg = |i: usize, d: usize| a.get(i).map_or(d, |s| s.parse().expect("a number"));
     let (s, w, h, runs) = (arg(0, 4), arg(1, 960), arg(2, 540), arg(3, 3));
+    if ![1, 2, 4, 7].contains(&s) {
+        eprintln!("strip_prototype: S must be 1, 2, 4 or 7 (a divisor of the 448-column blocks' 28 vectors)");
+        std::process::exit(2);
+    }
     if !(is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("fma")) {
         println!("strip_prototype: needs AVX-512F and FMA; nothing measured");
         return;
@@ -230,8 +237,11 @@ fn main() {
     let pad = r + 2 * F;
     // Blocks of 448 columns (a multiple of 16 S for S = 1, 2, 4, 7) and up to 128 rows.
     let (bw, bh_max) = (448usize, 128usize);
+    if w < bw + 2 * pad || h <= 2 * pad {
+        eprintln!("strip_prototype: the frame must be at least {} x {}", bw + 2 * pad, 2 * pad + 1);
+        std::process::exit(2);
+    }
     let region = Rect::from_origin_size(pad as i64, pad as i64, (w - 2 * pad) / bw * bw, h - 2 * pad);
-    assert!(region.width() > 0, "the frame must be at least {} wide", bw + 2 * pad);
     let mut seed = 0x2545_f491u32;
     let mut next = move || {
         seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
@@ -273,6 +283,7 @@ fn main() {
                         1 => filter::<1, 2, 3>(&img, r as i64, strength * strength, block, &mut num, &mut den),
                         2 => filter::<2, 3, 4>(&img, r as i64, strength * strength, block, &mut num, &mut den),
                         7 => filter::<7, 8, 9>(&img, r as i64, strength * strength, block, &mut num, &mut den),
+                        // 4, the default (checked above).
                         _ => filter::<4, 5, 6>(&img, r as i64, strength * strength, block, &mut num, &mut den),
                     }
                 }
