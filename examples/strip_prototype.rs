@@ -247,9 +247,12 @@ fn main() {
         seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
         (seed >> 8) as f32 / 16_777_216.0
     };
-    // A smooth image with noise, and a variance of the noise's size.
+    // A smooth image with noise, and a variance of the noise's size. Each
+    // plane has one vector of samples past the frame's end: the bottom-right
+    // block's last distance vectors read up to 32 - 2f columns past the
+    // block, beyond the frame's last row when its border is only r + 2f.
     let mut plane = |c: usize, var: bool| -> Vec<f32> {
-        (0..w * h)
+        (0..w * h + 16)
             .map(|i| {
                 let (x, y) = ((i % w) as f32, (i / w) as f32);
                 if var {
@@ -298,7 +301,7 @@ fn main() {
 
     let frame = Rect::from_origin_size(0, 0, w, h);
     let planes = |p: &[Vec<f32>; 3]| -> Vec<Plane> {
-        p.iter().map(|v| Plane::from_vec(frame, v.clone()).expect("frame-sized")).collect()
+        p.iter().map(|v| Plane::from_vec(frame, v[..w * h].to_vec()).expect("frame-sized")).collect()
     };
     let (values, variance) = (planes(&img.u), planes(&img.v));
     let job = Job { values: values.iter().collect(), variance: variance.iter().collect() };

@@ -704,7 +704,14 @@ struct Step {
 }
 
 /// The most search offsets filtered in lock step (one accumulation pass each).
-const GROUP_MAX: usize = 4;
+/// Seven cut a row of the search window (`2r + 1 = 21` offsets at r = 10)
+/// into three steps instead of six: each step streams the block's inputs
+/// and accumulators once, so fewer steps stream less, at the price of
+/// more lanes' rings. On the Zen 5 machine of session 19 (one binary, the
+/// group size switched at run time), the full filter at 1080p on two
+/// threads ran about 0.94x the time of groups of four, colour-only the
+/// same time (docs/performance.md).
+const GROUP_MAX: usize = 7;
 
 /// The horizontal offsets `first..=last` cut into groups of at most
 /// [`GROUP_MAX`], as even as possible, in increasing order.
@@ -984,8 +991,8 @@ fn accumulate<const W: usize>(
     }
     if c1 > c0 {
         let span = row_off + (c0 - block.x0) as usize..row_off + (c1 - block.x0) as usize;
-        // One arm per group size: GROUP_MAX must stay 4 for this match.
-        const _: () = assert!(GROUP_MAX == 4);
+        // One arm per group size: GROUP_MAX must stay 7 for this match.
+        const _: () = assert!(GROUP_MAX == 7);
         let at = ((y, dy), c0, c1, span);
         // Every lane's row is split alike (the same window rows), and only
         // with three channels.
@@ -993,10 +1000,16 @@ fn accumulate<const W: usize>(
             (1, true) => accumulate_span::<W, 1, false>(num, den, values, rows, at),
             (2, true) => accumulate_span::<W, 2, false>(num, den, values, rows, at),
             (3, true) => accumulate_span::<W, 3, false>(num, den, values, rows, at),
+            (4, true) => accumulate_span::<W, 4, false>(num, den, values, rows, at),
+            (5, true) => accumulate_span::<W, 5, false>(num, den, values, rows, at),
+            (6, true) => accumulate_span::<W, 6, false>(num, den, values, rows, at),
             (_, true) => accumulate_span::<W, GROUP_MAX, false>(num, den, values, rows, at),
             (1, false) => accumulate_span::<W, 1, true>(num, den, values, rows, at),
             (2, false) => accumulate_span::<W, 2, true>(num, den, values, rows, at),
             (3, false) => accumulate_span::<W, 3, true>(num, den, values, rows, at),
+            (4, false) => accumulate_span::<W, 4, true>(num, den, values, rows, at),
+            (5, false) => accumulate_span::<W, 5, true>(num, den, values, rows, at),
+            (6, false) => accumulate_span::<W, 6, true>(num, den, values, rows, at),
             (_, false) => accumulate_span::<W, GROUP_MAX, true>(num, den, values, rows, at),
         }
     }
