@@ -8,6 +8,15 @@
 //! - `peak_fma_f32` (AVX2 and AVX-512 tiers): one fused multiply-add, 1
 //!   operation (2 flops) per lane per step.
 //!
+//! - `mix_recip_exp2`: the filter's own `kernels::recip` and
+//!   `kernels::exp2_weight` on rows that stay in L1, `exp2_weight(recip(a) *
+//!   b)` per sample, compiled for the tier: 18 counted operations per sample
+//!   (the reciprocal's 6 fused multiply-adds, the multiply, the weight's 11;
+//!   integer bit operations not counted, as in docs/performance.md). Each
+//!   sample's operations depend on one another, as in the filter's loops:
+//!   the rate a row loop of the filter's arithmetic reaches with no memory
+//!   traffic beyond L1, below the independent chains' peak.
+//!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
 //! once) by its time and by the operation peak.
@@ -101,6 +110,40 @@ avx2_chains!(chains_avx2, "avx2", |v: &mut __m256, m, c| _mm256_add_ps(_mm256_mu
 avx512_chains!(fma_chains_avx512, "avx512f,fma", |v: &mut __m512, m, c| _mm512_fmadd_ps(*v, m, c));
 avx2_chains!(fma_chains_avx2, "avx2,fma", |v: &mut __m256, m, c| _mm256_fmadd_ps(*v, m, c));
 
+/// Samples of one row of the mix (3 x 4 KiB rows in L1) and its repetitions.
+const MIX_ROW: usize = 1024;
+const MIX_REPS: usize = 20_000;
+/// Counted operations per sample of the mix (see the module's docs).
+const MIX_OPS: usize = 18;
+
+#[inline(always)]
+fn mix_rows(reps: usize) -> f32 {
+    use nldenoise::filter::kernels::{exp2_weight, recip};
+    let a: Vec<f32> = (0..MIX_ROW).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
+    let b: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 89) as f32) * 0.1).collect();
+    let mut out = vec![0.0f32; MIX_ROW];
+    for _ in 0..reps {
+        let (a, b) = (black_box(&a[..]), black_box(&b[..]));
+        for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+            *o = exp2_weight(recip(x) * y);
+        }
+        black_box(&mut out);
+    }
+    out.iter().sum()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn mix_avx512(reps: usize) -> f32 {
+    mix_rows(reps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn mix_avx2(reps: usize) -> f32 {
+    mix_rows(reps)
+}
+
 fn portable(steps: usize) -> f32 {
     chains::<4>(steps, 1.0)
 }
@@ -156,6 +199,35 @@ fn bench(c: &mut Criterion) {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((ACC * lanes * STEPS * threads) as u64));
             g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
+        }
+    }
+    g.finish();
+    let mut g = c.benchmark_group("mix_recip_exp2");
+    g.sample_size(10);
+    let mut mix_tiers: Vec<(&str, Chains)> = Vec::new();
+    #[cfg(target_arch = "x86_64")]
+    {
+        let fma = std::is_x86_feature_detected!("fma");
+        if fma && std::is_x86_feature_detected!("avx2") {
+            // SAFETY: called only when the CPU has AVX2 and FMA.
+            mix_tiers.push(("avx2_8", |n| unsafe { mix_avx2(n) }));
+        }
+        if fma && std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: called only when the CPU has AVX-512F and FMA.
+            mix_tiers.push(("avx512_16", |n| unsafe { mix_avx512(n) }));
+        }
+    }
+    for (name, f) in mix_tiers {
+        for threads in [1usize, 2] {
+            g.throughput(Throughput::Elements((MIX_OPS * MIX_ROW * MIX_REPS * threads) as u64));
+            g.bench_function(format!("{name}_{threads}thread"), |b| {
+                b.iter(|| {
+                    std::thread::scope(|s| {
+                        let handles: Vec<_> = (0..threads).map(|_| s.spawn(move || f(black_box(MIX_REPS)))).collect();
+                        handles.into_iter().map(|h| h.join().unwrap()).sum::<f32>()
+                    })
+                })
+            });
         }
     }
     g.finish();
