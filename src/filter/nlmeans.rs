@@ -710,7 +710,8 @@ struct Step {
 /// more lanes' rings. On the Zen 5 machine of session 19 (one binary, the
 /// group size switched at run time), the full filter at 1080p on two
 /// threads ran about 0.94x the time of groups of four, colour-only the
-/// same time (docs/performance.md).
+/// same time; against the previous binary, 0.95-1.0x in runs of different
+/// hours: a gain of a few per cent at most (docs/performance.md).
 const GROUP_MAX: usize = 7;
 
 /// The horizontal offsets `first..=last` cut into groups of at most
