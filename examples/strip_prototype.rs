@@ -248,11 +248,12 @@ fn main() {
         (seed >> 8) as f32 / 16_777_216.0
     };
     // A smooth image with noise, and a variance of the noise's size. Each
-    // plane has one vector of samples past the frame's end: the bottom-right
-    // block's last distance vectors read up to 32 - 2f columns past the
-    // block, beyond the frame's last row when its border is only r + 2f.
+    // plane has 64 samples past the frame's end: the bottom-right block's
+    // last distance vectors may read past the frame's last row (the bound
+    // `filter` checks reaches up to 36 samples past it when the region
+    // ends at the frame's border of r + 2f).
     let mut plane = |c: usize, var: bool| -> Vec<f32> {
-        (0..w * h + 16)
+        (0..w * h + 64)
             .map(|i| {
                 let (x, y) = ((i % w) as f32, (i / w) as f32);
                 if var {
