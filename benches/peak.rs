@@ -151,9 +151,10 @@ fn portable(steps: usize) -> f32 {
 /// A chain runner: steps in, a checksum out.
 type Chains = fn(usize) -> f32;
 
-fn on_threads(threads: usize, f: Chains) -> f32 {
+/// `f(steps)` on `threads` threads at once; the sum of their checksums.
+fn on_threads(threads: usize, f: Chains, steps: usize) -> f32 {
     std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads).map(|_| s.spawn(move || f(black_box(STEPS)))).collect();
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(move || f(black_box(steps)))).collect();
         handles.into_iter().map(|h| h.join().unwrap()).sum()
     })
 }
@@ -176,7 +177,7 @@ fn bench(c: &mut Criterion) {
     for (name, lanes, f) in tiers {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((2 * ACC * lanes * STEPS * threads) as u64));
-            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
+            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f, STEPS)));
         }
     }
     g.finish();
@@ -198,7 +199,7 @@ fn bench(c: &mut Criterion) {
     for (name, lanes, f) in fma_tiers {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((ACC * lanes * STEPS * threads) as u64));
-            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f)));
+            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f, STEPS)));
         }
     }
     g.finish();
@@ -220,14 +221,7 @@ fn bench(c: &mut Criterion) {
     for (name, f) in mix_tiers {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((MIX_OPS * MIX_ROW * MIX_REPS * threads) as u64));
-            g.bench_function(format!("{name}_{threads}thread"), |b| {
-                b.iter(|| {
-                    std::thread::scope(|s| {
-                        let handles: Vec<_> = (0..threads).map(|_| s.spawn(move || f(black_box(MIX_REPS)))).collect();
-                        handles.into_iter().map(|h| h.join().unwrap()).sum::<f32>()
-                    })
-                })
-            });
+            g.bench_function(format!("{name}_{threads}thread"), |b| b.iter(|| on_threads(threads, f, MIX_REPS)));
         }
     }
     g.finish();
