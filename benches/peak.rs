@@ -16,6 +16,9 @@
 //!   sample's operations depend on one another, as in the filter's loops:
 //!   the rate a row loop of the filter's arithmetic reaches with no memory
 //!   traffic beyond L1, below the independent chains' peak.
+//!   `avx512_16_lockstep` runs the weight as `kernels::exp2_weight_lanes`
+//!   (each operation on a whole 64-sample chunk before the next, as the
+//!   filter's `weight_row` does): the same operations, in another order.
 //!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
@@ -132,10 +135,40 @@ fn mix_rows(reps: usize) -> f32 {
     out.iter().sum()
 }
 
+/// [`mix_rows`] with the weight in the filter's lockstep form
+/// (`kernels::exp2_weight_lanes` over chunks of `kernels::CHUNK_AVX512`
+/// samples, as `weight_row` runs it): the same operations and bits per
+/// sample, each operation on the whole chunk before the next.
+#[inline(always)]
+fn mix_rows_lockstep(reps: usize) -> f32 {
+    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight_lanes, recip};
+    let a: Vec<f32> = (0..MIX_ROW).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
+    let b: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 89) as f32) * 0.1).collect();
+    let mut out = vec![0.0f32; MIX_ROW];
+    for _ in 0..reps {
+        let (a, b) = (black_box(&a[..]), black_box(&b[..]));
+        for ((o, x), y) in out.chunks_exact_mut(W).zip(a.chunks_exact(W)).zip(b.chunks_exact(W)) {
+            let mut t = [0.0f32; W];
+            for k in 0..W {
+                t[k] = recip(x[k]) * y[k];
+            }
+            o.copy_from_slice(&exp2_weight_lanes(t));
+        }
+        black_box(&mut out);
+    }
+    out.iter().sum()
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 fn mix_avx512(reps: usize) -> f32 {
     mix_rows(reps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn mix_lockstep_avx512(reps: usize) -> f32 {
+    mix_rows_lockstep(reps)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -216,6 +249,8 @@ fn bench(c: &mut Criterion) {
         if fma && std::is_x86_feature_detected!("avx512f") {
             // SAFETY: called only when the CPU has AVX-512F and FMA.
             mix_tiers.push(("avx512_16", |n| unsafe { mix_avx512(n) }));
+            // SAFETY: as above.
+            mix_tiers.push(("avx512_16_lockstep", |n| unsafe { mix_lockstep_avx512(n) }));
         }
     }
     for (name, f) in mix_tiers {

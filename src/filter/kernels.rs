@@ -49,6 +49,54 @@ pub fn exp2_weight(t: f32) -> f32 {
     p * f32::from_bits(((ni + 127) as u32) << 23)
 }
 
+/// [`exp2_weight`] of every sample of a chunk, one operation at a time across
+/// the chunk: each sample gets exactly [`exp2_weight`]'s operations (so the
+/// same bits), but the compiled code runs the chunk's vectors in lockstep,
+/// each operation on all of them before the next, instead of one vector's
+/// whole dependent chain after another's. The chains are about 40 cycles
+/// long; in lockstep the out-of-order core needs far fewer waiting
+/// operations in flight to keep its pipes busy (`benches/peak.rs`'s
+/// `mix_recip_exp2` compares the two forms).
+#[inline(always)]
+pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
+    const ROUND: f32 = 12_582_912.0;
+    let t = lanes(t, |t| if t > -126.0 { t } else { -126.0 });
+    let t = lanes(t, |t| if t < 0.0 { t } else { 0.0 });
+    let tr = lanes(t, |t| t + ROUND);
+    let f = lanes2(t, tr, |t, tr| t - (tr - ROUND));
+    let mut p = lanes(f, |f| 1.326_470_2e-3_f32.mul_add(f, 9.671_505e-3));
+    p = lanes2(p, f, |p, f| p.mul_add(f, 5.550_733_6e-2));
+    p = lanes2(p, f, |p, f| p.mul_add(f, 2.402_224_2e-1));
+    #[allow(clippy::approx_constant)]
+    let c1 = 0.693_147_f32;
+    p = lanes2(p, f, |p, f| p.mul_add(f, c1));
+    p = lanes2(p, f, |p, f| p.mul_add(f, 1.0));
+    lanes2(p, tr, |p, tr| {
+        let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
+        p * f32::from_bits(((ni + 127) as u32) << 23)
+    })
+}
+
+/// `f` of every sample of a chunk.
+#[inline(always)]
+pub fn lanes<const W: usize>(a: [f32; W], f: impl Fn(f32) -> f32) -> [f32; W] {
+    let mut o = a;
+    for k in 0..W {
+        o[k] = f(a[k]);
+    }
+    o
+}
+
+/// `f` of every pair of samples of two chunks.
+#[inline(always)]
+pub fn lanes2<const W: usize>(a: [f32; W], b: [f32; W], f: impl Fn(f32, f32) -> f32) -> [f32; W] {
+    let mut o = a;
+    for k in 0..W {
+        o[k] = f(a[k], b[k]);
+    }
+    o
+}
+
 /// The factor turning a sum of per-channel distances into `t` of
 /// [`exp2_weight`]: `-log2(e) / channels`.
 pub fn log2_distance_scale(channels: usize) -> f32 {
@@ -903,6 +951,33 @@ mod tests {
         assert_eq!(exp2_weight(f32::NAN), floor);
         assert_eq!(exp2_weight(f32::NEG_INFINITY), floor);
         assert_eq!(exp2_weight(-1e30), floor);
+    }
+
+    /// The lockstep form gives [`exp2_weight`]'s bits for every sample:
+    /// every float of `[-2, 0]` with a stride, the clamps' edges, positive
+    /// values, infinities and NaN, in chunks of both widths the tiers use.
+    #[test]
+    fn exp2_weight_lanes_matches_exp2_weight() {
+        let mut ts: Vec<f32> =
+            ((-2.0f32).to_bits()..=(-0.0f32).to_bits()).rev().step_by(101).map(f32::from_bits).collect();
+        ts.extend((0..4000).map(|i| -130.0 + i as f32 * 0.0331));
+        ts.extend([0.0, -0.0, 1e-40, -1e-40, 5.0, -126.0, -125.999_99, -126.000_01, f32::NAN, f32::INFINITY]);
+        ts.extend([f32::NEG_INFINITY, f32::MAX, f32::MIN, -1e30]);
+        fn check<const W: usize>(ts: &[f32]) -> usize {
+            let mut checked = 0;
+            for c in ts.chunks(W) {
+                let mut t = [0.0f32; W];
+                t[..c.len()].copy_from_slice(c);
+                let got = exp2_weight_lanes(t);
+                for k in 0..W {
+                    assert_eq!(got[k].to_bits(), exp2_weight(t[k]).to_bits(), "t = {:e}", t[k]);
+                }
+                checked += W;
+            }
+            checked
+        }
+        assert!(check::<CHUNK>(&ts) >= ts.len());
+        assert!(check::<CHUNK_AVX512>(&ts) >= ts.len());
     }
 
     /// The array kernel (channel counts 1 to 4, with and without variance,

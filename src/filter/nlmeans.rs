@@ -11,8 +11,9 @@ use rayon::prelude::*;
 use super::column_sums::ColumnBox;
 use super::kernels::{
     CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut,
-    chunk_start, colour_distance_pair_rgb, cut, exp2_weight, feature_square_sum, feature_square_sum_any,
-    fold_feature_products, fold_feature_term, fold_feature_term_any, log2_distance_scale, rows_sum,
+    chunk_start, colour_distance_pair_rgb, cut, exp2_weight, exp2_weight_lanes, feature_square_sum,
+    feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any, lanes2,
+    log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512, taps7_sum_avx512};
@@ -925,11 +926,11 @@ fn weight_row<const W: usize, const GUIDED: bool, const SPLIT: bool>(
                     s[j] += t[j];
                 }
             }
-            let mut o = [0.0f32; W];
-            for j in 0..W {
-                o[j] = weight(s[j] * inner, g[j]);
-            }
-            *chunk_mut::<W>(dst, i) = o;
+            let t = lanes2(s, g, |s, g| {
+                let t = s * inner;
+                if GUIDED && g < t { g } else { t }
+            });
+            *chunk_mut::<W>(dst, i) = exp2_weight_lanes(t);
         }
     }
     for (i, nx) in clipped {
