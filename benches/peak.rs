@@ -19,6 +19,9 @@
 //!   `avx512_16_lockstep` runs the weight as `kernels::exp2_weight_lanes`
 //!   (each operation on a whole 64-sample chunk before the next, as the
 //!   filter's `weight_row` does): the same operations, in another order.
+//! - `distance_recip_div`: the colour distance's per-channel arithmetic over
+//!   rows in L1 (one thread), its reciprocal as `kernels::recip` or as an
+//!   IEEE division; throughput in pixel-channels per second.
 //!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
@@ -159,6 +162,51 @@ fn mix_rows_lockstep(reps: usize) -> f32 {
     out.iter().sum()
 }
 
+/// The colour distance's per-channel arithmetic (as
+/// `kernels::colour_distance_pair_rgb` with `alpha = 1`, one direction),
+/// three channels into 64-sample chunks, over rows in L1, with the
+/// denominator's reciprocal as `kernels::recip` or, with `DIV`, as an IEEE
+/// division (also the same bits on every tier, but not the filter's).
+#[inline(always)]
+fn distance_rows<const DIV: bool>(reps: usize) -> f32 {
+    use nldenoise::filter::kernels::recip;
+    let u: Vec<f32> = (0..3 * MIX_ROW + 64).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
+    let v: Vec<f32> = (0..3 * MIX_ROW + 64).map(|i| 0.01 + (i % 89) as f32 * 0.001).collect();
+    let mut out = vec![0.0f32; MIX_ROW];
+    for _ in 0..reps {
+        let (u, v) = (black_box(&u[..]), black_box(&v[..]));
+        for (c, o) in out.chunks_exact_mut(64).enumerate() {
+            let mut a = [0.0f32; 64];
+            for ch in 0..3 {
+                let at = ch * MIX_ROW + c * 64;
+                let (up, uq, vp, vq) = (&u[at..at + 64], &u[at + 1..at + 65], &v[at..at + 64], &v[at + 1..at + 65]);
+                for k in 0..64 {
+                    let d = up[k] - uq[k];
+                    let m = if vq[k] < vp[k] { vq[k] } else { vp[k] };
+                    let x = 0.2025f32.mul_add(vp[k] + vq[k], 1e-10);
+                    let r = if DIV { 1.0 / x } else { recip(x) };
+                    a[k] = (d * d - (vp[k] + m)).mul_add(r, a[k]);
+                }
+            }
+            o.copy_from_slice(&a);
+        }
+        black_box(&mut out);
+    }
+    out.iter().sum()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn distance_recip_avx512(reps: usize) -> f32 {
+    distance_rows::<false>(reps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn distance_div_avx512(reps: usize) -> f32 {
+    distance_rows::<true>(reps)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 fn mix_avx512(reps: usize) -> f32 {
@@ -260,6 +308,23 @@ fn bench(c: &mut Criterion) {
         }
     }
     g.finish();
+    // Samples (pixel-channels) per second of the distance's arithmetic.
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("fma") && std::is_x86_feature_detected!("avx512f") {
+        let mut g = c.benchmark_group("distance_recip_div");
+        g.sample_size(10);
+        g.throughput(Throughput::Elements((3 * MIX_ROW * MIX_REPS) as u64));
+        let variants: [(&str, Chains); 2] = [
+            // SAFETY: called only when the CPU has AVX-512F and FMA.
+            ("avx512_16_recip", |n| unsafe { distance_recip_avx512(n) }),
+            // SAFETY: as above.
+            ("avx512_16_div", |n| unsafe { distance_div_avx512(n) }),
+        ];
+        for (name, f) in variants {
+            g.bench_function(name, |b| b.iter(|| on_threads(1, f, MIX_REPS)));
+        }
+        g.finish();
+    }
 }
 
 criterion_group!(benches, bench);
