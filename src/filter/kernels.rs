@@ -25,28 +25,8 @@ use crate::geom::Rect;
 /// 3e-7 on `[-126, 0]` (tested below).
 #[inline(always)]
 pub fn exp2_weight(t: f32) -> f32 {
-    // Two selects that map to min/max instructions; NaN fails `t > -126` and
-    // lands on the clamp value.
-    let t = if t > -126.0 { t } else { -126.0 };
-    let t = if t < 0.0 { t } else { 0.0 };
-    const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
-    let tr = t + ROUND;
-    let n = tr - ROUND;
-    let f = t - n;
-    // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it with
-    // an integer subtraction (a float-to-int cast would be scalarised).
-    let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
-    // Constant term exactly 1: integer `t` give exact powers of two.
-    let mut p = 1.326_470_2e-3_f32;
-    p = p.mul_add(f, 9.671_505e-3);
-    p = p.mul_add(f, 5.550_733_6e-2);
-    p = p.mul_add(f, 2.402_224_2e-1);
-    // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
-    #[allow(clippy::approx_constant)]
-    let c1 = 0.693_147_f32;
-    p = p.mul_add(f, c1);
-    p = p.mul_add(f, 1.0);
-    p * f32::from_bits(((ni + 127) as u32) << 23)
+    // One implementation for one sample and for chunks: the same bits.
+    exp2_weight_lanes([t])[0]
 }
 
 /// [`exp2_weight`] of every sample of a chunk, one operation at a time across
@@ -60,19 +40,25 @@ pub fn exp2_weight(t: f32) -> f32 {
 /// (docs/performance.md, session 20).
 #[inline(always)]
 pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
-    const ROUND: f32 = 12_582_912.0;
+    const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
+    // Two selects that map to min/max instructions; NaN fails `t > -126` and
+    // lands on the clamp value.
     let t = lanes(t, |t| if t > -126.0 { t } else { -126.0 });
     let t = lanes(t, |t| if t < 0.0 { t } else { 0.0 });
     let tr = lanes(t, |t| t + ROUND);
     let f = lanes2(t, tr, |t, tr| t - (tr - ROUND));
+    // Constant term exactly 1: integer `t` give exact powers of two.
     let mut p = lanes(f, |f| 1.326_470_2e-3_f32.mul_add(f, 9.671_505e-3));
     p = lanes2(p, f, |p, f| p.mul_add(f, 5.550_733_6e-2));
     p = lanes2(p, f, |p, f| p.mul_add(f, 2.402_224_2e-1));
+    // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
     #[allow(clippy::approx_constant)]
     let c1 = 0.693_147_f32;
     p = lanes2(p, f, |p, f| p.mul_add(f, c1));
     p = lanes2(p, f, |p, f| p.mul_add(f, 1.0));
     lanes2(p, tr, |p, tr| {
+        // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it
+        // with an integer subtraction (a float-to-int cast would be scalarised).
         let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
         p * f32::from_bits(((ni + 127) as u32) << 23)
     })
@@ -954,7 +940,8 @@ mod tests {
         assert_eq!(exp2_weight(-1e30), floor);
     }
 
-    /// The lockstep form gives [`exp2_weight`]'s bits for every sample:
+    /// The lockstep form over a chunk gives the bits of [`exp2_weight`]
+    /// (the same form over one sample) for every sample:
     /// every float of `[-2, 0]` with a stride, the clamps' edges, positive
     /// values, infinities and NaN, in chunks of both widths the tiers use.
     #[test]
