@@ -122,40 +122,31 @@ const MIX_REPS: usize = 20_000;
 /// Counted operations per sample of the mix (see the module's docs).
 const MIX_OPS: usize = 18;
 
+/// The mix over rows in L1: per sample, or with `LOCKSTEP` the weight in
+/// the filter's lockstep form (`kernels::exp2_weight_lanes` over chunks of
+/// `kernels::CHUNK_AVX512` samples, as `weight_row` runs it): the same
+/// operations and bits per sample, each operation on the whole chunk
+/// before the next.
 #[inline(always)]
-fn mix_rows(reps: usize) -> f32 {
-    use nldenoise::filter::kernels::{exp2_weight, recip};
+fn mix_rows<const LOCKSTEP: bool>(reps: usize) -> f32 {
+    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight, exp2_weight_lanes, recip};
     let a: Vec<f32> = (0..MIX_ROW).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
     let b: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 89) as f32) * 0.1).collect();
     let mut out = vec![0.0f32; MIX_ROW];
     for _ in 0..reps {
         let (a, b) = (black_box(&a[..]), black_box(&b[..]));
-        for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
-            *o = exp2_weight(recip(x) * y);
-        }
-        black_box(&mut out);
-    }
-    out.iter().sum()
-}
-
-/// [`mix_rows`] with the weight in the filter's lockstep form
-/// (`kernels::exp2_weight_lanes` over chunks of `kernels::CHUNK_AVX512`
-/// samples, as `weight_row` runs it): the same operations and bits per
-/// sample, each operation on the whole chunk before the next.
-#[inline(always)]
-fn mix_rows_lockstep(reps: usize) -> f32 {
-    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight_lanes, recip};
-    let a: Vec<f32> = (0..MIX_ROW).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
-    let b: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 89) as f32) * 0.1).collect();
-    let mut out = vec![0.0f32; MIX_ROW];
-    for _ in 0..reps {
-        let (a, b) = (black_box(&a[..]), black_box(&b[..]));
-        for ((o, x), y) in out.chunks_exact_mut(W).zip(a.chunks_exact(W)).zip(b.chunks_exact(W)) {
-            let mut t = [0.0f32; W];
-            for k in 0..W {
-                t[k] = recip(x[k]) * y[k];
+        if LOCKSTEP {
+            for ((o, x), y) in out.chunks_exact_mut(W).zip(a.chunks_exact(W)).zip(b.chunks_exact(W)) {
+                let mut t = [0.0f32; W];
+                for k in 0..W {
+                    t[k] = recip(x[k]) * y[k];
+                }
+                o.copy_from_slice(&exp2_weight_lanes(t));
             }
-            o.copy_from_slice(&exp2_weight_lanes(t));
+        } else {
+            for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+                *o = exp2_weight(recip(x) * y);
+            }
         }
         black_box(&mut out);
     }
@@ -210,19 +201,19 @@ fn distance_div_avx512(reps: usize) -> f32 {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 fn mix_avx512(reps: usize) -> f32 {
-    mix_rows(reps)
+    mix_rows::<false>(reps)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 fn mix_lockstep_avx512(reps: usize) -> f32 {
-    mix_rows_lockstep(reps)
+    mix_rows::<true>(reps)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn mix_avx2(reps: usize) -> f32 {
-    mix_rows(reps)
+    mix_rows::<false>(reps)
 }
 
 fn portable(steps: usize) -> f32 {
