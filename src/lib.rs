@@ -8,7 +8,8 @@
 //! * [`exrio`]: every contact with the `exr` crate, channel roles, frame I/O;
 //! * [`filter`]: the pure filter math (SPEC §1–5) on any rectangle of a frame;
 //! * [`geom`], [`image`]: frame-coordinate rectangles and planes;
-//! * [`metrics`]: relMSE and friends (SPEC §8); [`preview`]: PNG crops.
+//! * [`metrics`]: relMSE and friends (SPEC §8); [`preview`]: PNG crops;
+//! * [`sequence`]: frame sequences for batch runs (`shot.####.exr`, frame lists).
 //!
 //! ```
 //! use nldenoise::{filter, geom::Rect, image::Plane};
@@ -40,5 +41,6 @@ pub mod geom;
 pub mod image;
 pub mod metrics;
 pub mod preview;
+pub mod sequence;
 
 pub use error::{Error, Result};

@@ -1,24 +1,42 @@
-//! `nldenoise denoise INPUT -o OUTPUT`.
+//! `nldenoise denoise INPUT... -o OUTPUT`: one frame, or a batch of frames
+//! (a frame sequence `shot.####.exr`, or several files into a folder).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use anyhow::bail;
 use clap::Args;
 use nldenoise::api;
 use nldenoise::engine::{StreamOptions, budget};
 use nldenoise::exrio::{self, OutputCompression, WriteOptions};
-use tracing::info;
+use nldenoise::sequence;
+use tracing::{error, info};
 
 use super::{ChannelArgs, FilterArgs, thread_pool};
 
 /// Arguments of `denoise`.
 #[derive(Args, Debug)]
 pub struct DenoiseArgs {
-    /// Noisy EXR frame.
-    pub input: PathBuf,
-    /// Where to write the denoised frame (written atomically).
+    /// Noisy EXR frame; or a frame sequence, `shot.####.exr` or `shot.%04d.exr` (every frame
+    /// present, or those of --frames); or several frames (with -o a folder).
+    #[arg(required = true, num_args = 1.., value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
+    /// Where to write the denoised frame (written atomically): a file; for a sequence a frame
+    /// pattern (`den.####.exr`) or an existing folder; for several inputs an existing folder
+    /// (each frame under its input's file name).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Frames of a sequence input: `1001-1100`, `1001-1100x2` (every 2nd), `1001,1050`, or a mix;
+    /// default: every frame whose file matches the pattern.
+    #[arg(long, value_name = "LIST")]
+    pub frames: Option<String>,
+    /// Leave frames whose output file already exists (resume an interrupted batch).
+    #[arg(long)]
+    pub skip_existing: bool,
+    /// Go on with the next frames when a frame fails (the run still exits with 1, listing the
+    /// failed frames); by default a batch stops at its first failed frame.
+    #[arg(long)]
+    pub keep_going: bool,
     #[command(flatten)]
     pub filter: FilterArgs,
     #[command(flatten)]
@@ -43,11 +61,69 @@ pub struct DenoiseArgs {
 }
 
 pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
+    // Every argument is checked before the first frame is read.
+    let params = a.filter.params()?;
+    let jobs = sequence::plan(&a.inputs, &a.output, a.frames.as_deref())?;
+    let batch = jobs.len() > 1 || jobs[0].frame.is_some();
+    if !batch {
+        let job = &jobs[0];
+        if a.skip_existing && job.output.exists() {
+            info!("{} exists, skipped (--skip-existing)", job.output.display());
+            return Ok(());
+        }
+        denoise_one(&a, &params, &job.input, &job.output)?;
+    } else {
+        run_batch(&a, &params, &jobs)?;
+    }
+    if let Some(peak) = budget::peak_rss_bytes() {
+        info!("peak resident memory: {:.1} MiB", peak as f64 / 1048576.0);
+    }
+    Ok(())
+}
+
+/// The frames one after the other (each uses every thread), stopping at the
+/// first failure unless `--keep-going`; any failure fails the run.
+fn run_batch(a: &DenoiseArgs, params: &nldenoise::filter::Params, jobs: &[sequence::Job]) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let n = jobs.len();
+    let (mut done, mut skipped, mut failed) = (0, 0, Vec::new());
+    for (i, job) in jobs.iter().enumerate() {
+        let at = format!("[{}/{n}]", i + 1);
+        if a.skip_existing && job.output.exists() {
+            info!("{at} {} exists, skipped (--skip-existing)", job.output.display());
+            skipped += 1;
+            continue;
+        }
+        match denoise_one(a, params, &job.input, &job.output) {
+            Ok(()) => done += 1,
+            Err(e) if a.keep_going => {
+                error!("{at} {e:#}");
+                failed.push(job.input.display().to_string());
+            }
+            Err(e) => bail!(
+                "{e:#}\n  the batch stopped at frame {} of {n} ({done} denoised before it); \
+                 --keep-going goes on past failed frames",
+                i + 1
+            ),
+        }
+    }
+    info!(
+        "batch of {n} frames in {:.2}s: {done} denoised, {skipped} skipped, {} failed",
+        t0.elapsed().as_secs_f64(),
+        failed.len()
+    );
+    if !failed.is_empty() {
+        bail!("{} of {n} frames failed: {}", failed.len(), failed.join(", "));
+    }
+    Ok(())
+}
+
+/// One frame: streamed through the tiled engine, or whole (`--tile-size 0`).
+fn denoise_one(a: &DenoiseArgs, params: &nldenoise::filter::Params, input: &Path, output: &Path) -> anyhow::Result<()> {
     let t0 = Instant::now();
     if a.tile_size == 0 {
-        whole_frame(&a)?;
+        whole_frame(a, params, input, output)?;
     } else {
-        let params = a.filter.params()?;
         let opts = StreamOptions {
             tile_size: a.tile_size,
             threads: a.threads,
@@ -56,38 +132,34 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
             ..StreamOptions::default()
         };
         let (report, _) =
-            api::denoise_file_streaming(&a.input, &a.output, &a.channels.options(), &params, &opts, a.compression)?;
+            api::denoise_file_streaming(input, output, &a.channels.options(), params, &opts, a.compression)?;
         for n in &report.roles.notes {
-            info!("{}: {n}", a.input.display());
+            info!("{}: {n}", input.display());
         }
     }
-    info!("{} -> {} in {:.2}s", a.input.display(), a.output.display(), t0.elapsed().as_secs_f64());
-    if let Some(peak) = budget::peak_rss_bytes() {
-        info!("peak resident memory: {:.1} MiB", peak as f64 / 1048576.0);
-    }
+    info!("{} -> {} in {:.2}s", input.display(), output.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
 
 /// `--tile-size 0`: read the whole frame, filter it in memory, write it.
-fn whole_frame(a: &DenoiseArgs) -> anyhow::Result<()> {
-    let params = a.filter.params()?;
+fn whole_frame(a: &DenoiseArgs, params: &nldenoise::filter::Params, input: &Path, output: &Path) -> anyhow::Result<()> {
     let pool = thread_pool(a.threads)?;
     let t0 = Instant::now();
     let limit = a.memory_limit.unwrap_or_else(budget::default_limit_bytes);
-    let mut frame = exrio::read_frame_within(&a.input, limit)?;
+    let mut frame = exrio::read_frame_within(input, limit)?;
     let rect = frame.data_window;
     info!(
         "read {} ({}x{}, {} channels) in {:.2}s",
-        a.input.display(),
+        input.display(),
         rect.width(),
         rect.height(),
         frame.channels.len(),
         t0.elapsed().as_secs_f64()
     );
     let t1 = Instant::now();
-    let report = pool.install(|| api::denoise_frame(&mut frame, &a.input, &a.channels.options(), &params, a.half))?;
+    let report = pool.install(|| api::denoise_frame(&mut frame, input, &a.channels.options(), params, a.half))?;
     for n in &report.roles.notes {
-        info!("{}: {n}", a.input.display());
+        info!("{}: {n}", input.display());
     }
     info!(
         "filtered in {:.2}s on {} threads (halo {} px, {} features, {} layers)",
@@ -99,7 +171,7 @@ fn whole_frame(a: &DenoiseArgs) -> anyhow::Result<()> {
     );
     info!("{} pixels had NaN, infinite or out-of-range inputs and were repaired", report.repaired);
     let t2 = Instant::now();
-    exrio::write_frame(&a.output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
-    info!("wrote {} in {:.2}s", a.output.display(), t2.elapsed().as_secs_f64());
+    exrio::write_frame(output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
+    info!("wrote {} in {:.2}s", output.display(), t2.elapsed().as_secs_f64());
     Ok(())
 }

@@ -163,3 +163,150 @@ fn bad_inputs_fail_clearly_without_output() {
     let err = String::from_utf8(err.get_output().stderr.clone()).unwrap();
     assert!(err.contains("channels found"), "{err}");
 }
+
+/// Frames `shot.NNNN.exr` in `dir`: the fixture with its beauty (and its
+/// halves) scaled by a different factor per frame, so that every frame's
+/// output differs.
+fn write_sequence(dir: &Path, frames: &[i64]) {
+    let base = exrio::read_frame(&fixture("cornell_0032spp.exr")).unwrap();
+    for &f in frames {
+        let mut frame = base.clone();
+        let k = 1.0 + 0.1 * (f % 10) as f32;
+        for name in ["R", "G", "B", "A.R", "A.G", "A.B", "B.R", "B.G", "B.B"] {
+            let scaled: Vec<f32> = frame.channel(name).unwrap().to_f32().iter().map(|v| v * k).collect();
+            frame.set_channel(exrio::Channel::from_f32(name, scaled));
+        }
+        exrio::write_frame(&dir.join(format!("shot.{f:04}.exr")), &frame, &Default::default()).unwrap();
+    }
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn a_frame_sequence_gives_each_frame_its_own_single_frame_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, out, single) = (dir.path().join("in"), dir.path().join("out"), dir.path().join("single"));
+    for d in [&src, &out, &single] {
+        std::fs::create_dir(d).unwrap();
+    }
+    write_sequence(&src, &[1001, 1002, 1003]);
+    bin()
+        .arg("denoise")
+        .arg(src.join("shot.####.exr"))
+        .arg("-o")
+        .arg(out.join("den.%04d.exr"))
+        .args(["--threads", "2"])
+        .assert()
+        .success();
+    assert_eq!(files_in(&out), ["den.1001.exr", "den.1002.exr", "den.1003.exr"]);
+    let mut outputs = Vec::new();
+    for f in [1001, 1002, 1003] {
+        let one = single.join(format!("{f}.exr"));
+        bin().arg("denoise").arg(src.join(format!("shot.{f}.exr"))).arg("-o").arg(&one).assert().success();
+        let (batch, alone) = (std::fs::read(out.join(format!("den.{f}.exr"))).unwrap(), std::fs::read(&one).unwrap());
+        assert!(batch == alone, "frame {f}: the batch's output differs from a single-frame run's");
+        outputs.push(batch);
+    }
+    assert!(outputs[0] != outputs[1] && outputs[1] != outputs[2], "each frame must be its own");
+}
+
+#[test]
+fn frame_lists_folders_and_skip_existing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, out) = (dir.path().join("in"), dir.path().join("out"));
+    std::fs::create_dir(&src).unwrap();
+    std::fs::create_dir(&out).unwrap();
+    write_sequence(&src, &[1, 2, 3, 4, 5]);
+    // An output already there is left as it is with --skip-existing.
+    std::fs::write(out.join("shot.0003.exr"), b"kept").unwrap();
+    bin()
+        .arg("denoise")
+        .arg(src.join("shot.####.exr"))
+        .arg("-o")
+        .arg(&out)
+        .args(["--frames", "1-5x2", "--skip-existing"])
+        .assert()
+        .success();
+    assert_eq!(files_in(&out), ["shot.0001.exr", "shot.0003.exr", "shot.0005.exr"]);
+    assert_eq!(std::fs::read(out.join("shot.0003.exr")).unwrap(), b"kept");
+    assert!(exrio::read_frame(&out.join("shot.0005.exr")).is_ok());
+    // Several inputs (a shell glob) into a folder, under their own names.
+    let many = dir.path().join("many");
+    std::fs::create_dir(&many).unwrap();
+    bin()
+        .arg("denoise")
+        .arg(src.join("shot.0002.exr"))
+        .arg(src.join("shot.0004.exr"))
+        .arg("-o")
+        .arg(&many)
+        .assert()
+        .success();
+    assert_eq!(files_in(&many), ["shot.0002.exr", "shot.0004.exr"]);
+}
+
+#[test]
+fn a_bad_frame_stops_the_batch_or_is_listed_with_keep_going() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, out) = (dir.path().join("in"), dir.path().join("out"));
+    std::fs::create_dir(&src).unwrap();
+    std::fs::create_dir(&out).unwrap();
+    write_sequence(&src, &[1, 2, 3]);
+    // Frame 2 is truncated (a half-written file on the farm); frame 4 is missing.
+    let bad = src.join("shot.0002.exr");
+    let bytes = std::fs::read(&bad).unwrap();
+    std::fs::write(&bad, &bytes[..bytes.len() / 2]).unwrap();
+    let stopped = bin()
+        .arg("denoise")
+        .arg(src.join("shot.####.exr"))
+        .arg("-o")
+        .arg(out.join("d.####.exr"))
+        .args(["--frames", "1-4"])
+        .assert()
+        .failure()
+        .code(1);
+    let err = String::from_utf8_lossy(&stopped.get_output().stderr).into_owned();
+    assert!(err.contains("shot.0002.exr") && err.contains("stopped at frame 2 of 4"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // Frame 1 was written, nothing after the failure, no temporary file left.
+    assert_eq!(files_in(&out), ["d.0001.exr"]);
+    let went_on = bin()
+        .arg("denoise")
+        .arg(src.join("shot.####.exr"))
+        .arg("-o")
+        .arg(out.join("d.####.exr"))
+        .args(["--frames", "1-4", "--keep-going"])
+        .assert()
+        .failure()
+        .code(1);
+    let err = String::from_utf8_lossy(&went_on.get_output().stderr).into_owned();
+    assert!(
+        err.contains("2 of 4 frames failed") && err.contains("shot.0002.exr") && err.contains("shot.0004.exr"),
+        "{err}"
+    );
+    assert_eq!(files_in(&out), ["d.0001.exr", "d.0003.exr"]);
+    assert_eq!(std::fs::read(&bad).unwrap(), &bytes[..bytes.len() / 2], "the input must not be modified");
+}
+
+#[test]
+fn batch_arguments_are_checked_before_any_frame_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    write_sequence(dir.path(), &[7]);
+    let seq = dir.path().join("shot.####.exr");
+    let cases: [(Vec<PathBuf>, PathBuf, Vec<&str>, &str); 4] = [
+        (vec![seq.clone()], dir.path().join("out.exr"), vec![], "must be a frame pattern"),
+        (vec![dir.path().join("shot.0007.exr")], dir.path().join("o.exr"), vec!["--frames", "7"], "--frames needs"),
+        (vec![seq.clone()], dir.path().join("o.####.exr"), vec!["--frames", "9-1"], "ends before it starts"),
+        (vec![seq.clone()], dir.path().join("nowhere/"), vec![], "does not exist"),
+    ];
+    for (inputs, output, extra, message) in cases {
+        let run = bin().arg("denoise").args(&inputs).arg("-o").arg(&output).args(&extra).assert().failure().code(1);
+        let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+        assert!(err.contains(message), "{inputs:?} -> {output:?}: {err}");
+    }
+    assert_eq!(files_in(dir.path()), ["shot.0007.exr"], "nothing may be written");
+}
