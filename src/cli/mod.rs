@@ -30,7 +30,7 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Denoise an EXR frame.
+    /// Denoise an EXR frame, or a batch: a frame sequence (shot.####.exr) or several frames into a folder.
     Denoise(denoise::DenoiseArgs),
     /// Print a frame's channels, the role chosen for each, and what the denoiser will use.
     Info(info::InfoArgs),
