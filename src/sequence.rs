@@ -195,8 +195,8 @@ pub struct Job {
 /// The jobs of a run of `inputs` to `output`, checked before any frame is
 /// filtered:
 ///
-/// * one input without a pattern: one job, to `output`, or into `output`
-///   under the input's file name when `output` is a folder;
+/// * one input without a pattern: one job, to the file `output` (as a
+///   single run has always written it: a folder there is the writer's error);
 /// * one input with a frame pattern: one job per frame of `frames` (a frame
 ///   list, see [`parse_frames`]), or per file matching the pattern when
 ///   `frames` is `None`; `output` is a pattern (its own padding) or a folder
@@ -204,17 +204,22 @@ pub struct Job {
 /// * several inputs (a shell's glob): one job each, into the folder `output`
 ///   under the input's file name.
 ///
-/// `output` is a folder when it exists as one or ends with a path
-/// separator; a folder must exist. An error names the argument at fault;
+/// For a batch, `output` is a folder when it exists as one or ends with a
+/// path separator, and a folder must exist. An error names the argument at fault;
 /// two jobs writing the same file are an error.
 pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<Vec<Job>> {
     let bad = |why: String| Error::InvalidParameter(why);
     let out_pattern = FramePattern::parse(output)?;
     let out_text = output.as_os_str().to_string_lossy();
     let out_is_dir = output.is_dir() || out_text.ends_with('/') || out_text.ends_with(std::path::MAIN_SEPARATOR);
-    if out_is_dir && !output.is_dir() {
-        return Err(bad(format!("{}: the output folder does not exist", output.display())));
-    }
+    // For a batch: the output folder must exist (a single frame's output is
+    // a file path, whose faults the writer reports).
+    let batch_folder = || {
+        if out_is_dir && !output.is_dir() {
+            return Err(bad(format!("{}: the output folder does not exist", output.display())));
+        }
+        Ok(out_is_dir)
+    };
     let into_dir = |input: &Path, name: Option<String>| -> Result<PathBuf> {
         let name = match name {
             Some(n) => n.into(),
@@ -241,8 +246,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
                         input.display()
                     )));
                 }
-                let output = if out_is_dir { into_dir(input, None)? } else { output.to_path_buf() };
-                vec![Job { frame: None, input: input.clone(), output }]
+                vec![Job { frame: None, input: input.clone(), output: output.to_path_buf() }]
             }
             Some(pattern) => {
                 let frames = match frames {
@@ -252,6 +256,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
                 if frames.is_empty() {
                     return Err(bad(format!("{}: no file matches this frame pattern", input.display())));
                 }
+                let out_is_dir = batch_folder()?;
                 if out_pattern.is_none() && !out_is_dir {
                     return Err(bad(format!(
                         "the input {} is a frame sequence: the output {} must be a frame pattern (#### or %04d) or an existing folder",
@@ -277,7 +282,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
             if frames.is_some() {
                 return Err(bad("--frames needs a single input with a frame pattern (#### or %04d)".into()));
             }
-            if !out_is_dir {
+            if !batch_folder()? {
                 return Err(bad(format!(
                     "{} inputs: the output {} must be an existing folder",
                     several.len(),
@@ -369,10 +374,11 @@ mod tests {
             std::fs::write(pb(&format!("in.{f:04}.exr")), b"").unwrap();
         }
         std::fs::create_dir(pb("out")).unwrap();
-        // One frame, as before; into a folder.
+        // One frame, as before: the output is the path given, even a folder
+        // (which the writer then refuses, naming it).
         let one = plan(&[pb("a.exr")], &pb("b.exr"), None).unwrap();
         assert_eq!(one, vec![Job { frame: None, input: pb("a.exr"), output: pb("b.exr") }]);
-        assert_eq!(plan(&[pb("a.exr")], &pb("out"), None).unwrap()[0].output, pb("out/a.exr"));
+        assert_eq!(plan(&[pb("a.exr")], &pb("out"), None).unwrap()[0].output, pb("out"));
         // A pattern: discovered frames, or a list; to a pattern or a folder.
         let seq = plan(&[pb("in.####.exr")], &pb("out/o.%02d.exr"), None).unwrap();
         assert_eq!(seq.iter().map(|j| j.frame.unwrap()).collect::<Vec<_>>(), vec![1, 2, 3]);
@@ -392,7 +398,7 @@ mod tests {
         assert!(err(&["x.####.exr"], "out", None).contains("no file matches"));
         assert!(err(&["a.exr", "b.exr"], "b.exr", None).contains("must be an existing folder"));
         assert!(err(&["a.exr", "in.####.exr"], "out", None).contains("must be the only input"));
-        assert!(err(&["a.exr"], "missing/", None).contains("does not exist"));
+        assert!(err(&["a.exr", "b.exr"], "missing/", None).contains("does not exist"));
         assert!(err(&["in.####.exr"], "out/same.exr/", None).contains("does not exist"));
         assert!(err(&["a.exr", "sub/a.exr"], "out", None).contains("would both be written to"));
     }
