@@ -195,8 +195,9 @@ pub struct Job {
 /// The jobs of a run of `inputs` to `output`, checked before any frame is
 /// filtered:
 ///
-/// * one input without a pattern: one job, to the file `output` (as a
-///   single run has always written it: a folder there is the writer's error);
+/// * one input without a pattern (or a file that exists, whatever its
+///   name): one job, to the file `output` (as a single run has always
+///   written it: a folder there is the writer's error);
 /// * one input with a frame pattern: one job per frame of `frames` (a frame
 ///   list, see [`parse_frames`]), or per file matching the pattern when
 ///   `frames` is `None`; `output` is a pattern (its own padding) or a folder
@@ -209,7 +210,8 @@ pub struct Job {
 /// two jobs writing the same file are an error.
 pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<Vec<Job>> {
     let bad = |why: String| Error::InvalidParameter(why);
-    let out_pattern = FramePattern::parse(output)?;
+    // A file that exists is itself, even with a `#` or `%d` in its name.
+    let pattern_of = |p: &Path| if p.is_file() { Ok(None) } else { FramePattern::parse(p) };
     let out_text = output.as_os_str().to_string_lossy();
     let out_is_dir = output.is_dir() || out_text.ends_with('/') || out_text.ends_with(std::path::MAIN_SEPARATOR);
     // For a batch: the output folder must exist (a single frame's output is
@@ -231,7 +233,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
     };
     let jobs = match inputs {
         [] => return Err(bad("no input given".into())),
-        [input] => match FramePattern::parse(input)? {
+        [input] => match pattern_of(input)? {
             None => {
                 if frames.is_some() {
                     return Err(bad(format!(
@@ -239,7 +241,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
                         input.display()
                     )));
                 }
-                if out_pattern.is_some() {
+                if !input.is_file() && pattern_of(output)?.is_some() {
                     return Err(bad(format!(
                         "the output {} has a frame pattern but the input {} has none",
                         output.display(),
@@ -256,6 +258,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
                 if frames.is_empty() {
                     return Err(bad(format!("{}: no file matches this frame pattern", input.display())));
                 }
+                let out_pattern = FramePattern::parse(output)?;
                 let out_is_dir = batch_folder()?;
                 if out_pattern.is_none() && !out_is_dir {
                     return Err(bad(format!(
@@ -276,7 +279,7 @@ pub fn plan(inputs: &[PathBuf], output: &Path, frames: Option<&str>) -> Result<V
             }
         },
         several => {
-            if let Some(p) = several.iter().find(|p| matches!(FramePattern::parse(p), Ok(Some(_)))) {
+            if let Some(p) = several.iter().find(|p| matches!(pattern_of(p), Ok(Some(_)))) {
                 return Err(bad(format!("{}: a frame pattern must be the only input", p.display())));
             }
             if frames.is_some() {
@@ -385,6 +388,12 @@ mod tests {
         assert_eq!((seq[1].input.clone(), seq[1].output.clone()), (pb("in.0002.exr"), pb("out/o.02.exr")));
         let listed = plan(&[pb("in.####.exr")], &pb("out"), Some("3,7")).unwrap();
         assert_eq!(listed[1], Job { frame: Some(7), input: pb("in.0007.exr"), output: pb("out/in.0007.exr") });
+        // Files that exist are taken as they are, `#` or not.
+        std::fs::write(pb("take#1.exr"), b"").unwrap();
+        std::fs::write(pb("take#2.exr"), b"").unwrap();
+        let literal = plan(&[pb("take#1.exr")], &pb("take#1_den.exr"), None).unwrap();
+        assert_eq!(literal[0].output, pb("take#1_den.exr"));
+        assert_eq!(plan(&[pb("take#1.exr"), pb("take#2.exr")], &pb("out"), None).unwrap().len(), 2);
         // Several inputs into a folder.
         let many = plan(&[pb("in.0001.exr"), pb("in.0002.exr")], &pb("out"), None).unwrap();
         assert_eq!(many[1].output, pb("out/in.0002.exr"));
