@@ -71,7 +71,10 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
             info!("{} exists, skipped (--skip-existing)", job.output.display());
             return Ok(());
         }
-        denoise_one(&a, &params, &job.input, &job.output)?;
+        super::progress::start(job.input.display().to_string());
+        let done = denoise_one(&a, &params, &job.input, &job.output);
+        super::progress::finish();
+        done?;
     } else {
         run_batch(&a, &params, &jobs)?;
     }
@@ -94,7 +97,10 @@ fn run_batch(a: &DenoiseArgs, params: &nldenoise::filter::Params, jobs: &[sequen
             skipped += 1;
             continue;
         }
-        match denoise_one(a, params, &job.input, &job.output) {
+        super::progress::start(format!("{at} {}", job.input.display()));
+        let done_one = denoise_one(a, params, &job.input, &job.output);
+        super::progress::finish();
+        match done_one {
             Ok(()) => done += 1,
             Err(e) if a.keep_going => {
                 error!("{at} {e:#}");

@@ -6,6 +6,7 @@
 mod compare;
 mod denoise;
 mod info;
+mod progress;
 mod quality;
 
 use std::process::ExitCode;
@@ -136,7 +137,9 @@ impl ChannelArgs {
 }
 
 fn init_logging(verbose: u8, quiet: bool) {
-    use tracing_subscriber::EnvFilter;
+    use tracing_subscriber::filter::Targets;
+    use tracing_subscriber::prelude::*;
+    use tracing_subscriber::{EnvFilter, fmt};
     let default = match (quiet, verbose) {
         (true, _) => "error",
         (false, 0) => "warn",
@@ -144,12 +147,17 @@ fn init_logging(verbose: u8, quiet: bool) {
         _ => "debug",
     };
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+    // The progress bar (on a terminal, without -q) takes the engine's progress
+    // events; the log lines are printed above it.
+    let bar = progress::init(!quiet);
+    let lines = fmt::layer()
+        .with_writer(progress::BarWriter(bar.clone()))
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
-        .try_init();
+        .with_filter(filter);
+    let progress = progress::ProgressLayer(bar)
+        .with_filter(Targets::new().with_target(nldenoise::engine::PROGRESS_TARGET, tracing::Level::TRACE));
+    let _ = tracing_subscriber::registry().with(lines).with(progress).try_init();
 }
 
 /// Run the command line; never panics on bad input.
@@ -158,6 +166,7 @@ pub fn main() -> ExitCode {
     nldenoise::engine::budget::bound_allocator();
     // Interrupted (Ctrl-C, a farm's SIGTERM): leave no temporary output behind.
     let _ = ctrlc::set_handler(|| {
+        progress::finish();
         nldenoise::exrio::remove_unfinished_outputs();
         eprintln!("error: interrupted; no output written");
         std::process::exit(130);

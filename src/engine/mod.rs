@@ -117,7 +117,17 @@ struct FilterCounters {
     tiles: usize,
     filtered_px: usize,
     repaired: usize,
+    /// Output pixels of the bands filtered so far.
+    done_px: usize,
 }
+
+/// The target of the engine's progress events: one `TRACE` event per
+/// filtered tile, with the fields `done` and `total` (output pixels of the
+/// frame filtered so far, and in all). Events of tiles filtered in parallel
+/// may arrive out of order: the largest `done` is the progress. A
+/// `tracing` layer filtering on this target drives a progress display (the
+/// CLI's bar) without the engine knowing about it.
+pub const PROGRESS_TARGET: &str = "nldenoise::progress";
 
 struct BandIn {
     band: Rect,
@@ -397,6 +407,7 @@ fn filter_band(
     counters.tiles += tiles.len();
     counters.filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
     let repaired = std::sync::atomic::AtomicUsize::new(0);
+    let (done_before, band_done, total) = (counters.done_px, std::sync::atomic::AtomicUsize::new(0), frame.area());
     // Each finished tile is pasted into the band at once, so only the tiles
     // being filtered hold results.
     let out_planes = std::sync::Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect::<Vec<_>>());
@@ -410,11 +421,15 @@ fn filter_band(
             for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
                 dst.paste(src);
             }
+            drop(planes);
+            let done = done_before + band_done.fetch_add(t.area(), std::sync::atomic::Ordering::Relaxed) + t.area();
+            tracing::trace!(target: PROGRESS_TARGET, done = done as u64, total = total as u64);
             Ok(())
         })
     })?;
     drop(inputs);
     counters.repaired += repaired.into_inner();
+    counters.done_px += band.area();
     let n_tiles = tiles.len();
     let out_planes = out_planes.into_inner().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
     let samples: Vec<Samples> = pool.install(|| {
