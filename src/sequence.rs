@@ -23,6 +23,9 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
+/// Most digits of padding a frame pattern may ask for.
+pub const MAX_PADDING: usize = 32;
+
 /// Most frames one frame list may name (a guard against typos such as
 /// `1-100000000`, which would otherwise allocate a job per frame).
 pub const MAX_FRAMES: usize = 1_000_000;
@@ -63,6 +66,9 @@ impl FramePattern {
         let Some((start, end, width)) = token(name) else { return Ok(None) };
         if token(&name[end..]).is_some() {
             return Err(bad("more than one frame pattern in the file name"));
+        }
+        if width > MAX_PADDING {
+            return Err(bad(&format!("a frame pattern of {width} digits (at most {MAX_PADDING})")));
         }
         Ok(Some(FramePattern {
             dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
@@ -130,7 +136,7 @@ fn token(s: &str) -> Option<(usize, usize, usize)> {
             let digits = b[i + 1..].iter().take_while(|c| c.is_ascii_digit()).count();
             let at = i + 1 + digits;
             if at < b.len() && b[at] == b'd' && (digits == 0 || b[i + 1] == b'0') {
-                let width = if digits == 0 { 1 } else { s[i + 1..at].parse().ok()? };
+                let width = if digits == 0 { 1 } else { s[i + 1..at].parse().unwrap_or(usize::MAX) };
                 return Some((i, at + 1, width.max(1)));
             }
         }
@@ -336,7 +342,16 @@ mod tests {
 
     #[test]
     fn rejected_patterns() {
-        for p in ["a.##.##.exr", "a.%04d.#.exr", "r###/a.exr"] {
+        let many = format!("a.{}.exr", "#".repeat(70_000));
+        for p in [
+            "a.##.##.exr",
+            "a.%04d.#.exr",
+            "r###/a.exr",
+            "a.%033d.exr",
+            "a.%099999999999d.exr",
+            "a.%0999999999999999999999d.exr",
+            &many,
+        ] {
             assert!(FramePattern::parse(Path::new(p)).is_err(), "{p}");
         }
     }

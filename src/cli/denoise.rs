@@ -103,12 +103,13 @@ fn run_batch(a: &DenoiseArgs, params: &nldenoise::filter::Params, jobs: &[sequen
         match done_one {
             Ok(()) => done += 1,
             Err(e) if a.keep_going => {
-                error!("{at} {e:#}");
+                error!("{at} {}", super::report(&e));
                 failed.push(job.input.display().to_string());
             }
             Err(e) => bail!(
-                "{e:#}\n  the batch stopped at frame {} of {n} ({done} denoised before it); \
+                "{}\n  the batch stopped at frame {} of {n} ({done} denoised before it); \
                  --keep-going goes on past failed frames",
+                super::report(&e),
                 i + 1
             ),
         }

@@ -310,3 +310,24 @@ fn batch_arguments_are_checked_before_any_frame_runs() {
     }
     assert_eq!(files_in(dir.path()), ["shot.0007.exr"], "nothing may be written");
 }
+
+#[test]
+fn an_error_names_its_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.exr");
+    let run = bin().arg("denoise").arg(&missing).arg("-o").arg(dir.path().join("o.exr")).assert().failure().code(1);
+    let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+    assert!(err.contains(&missing.display().to_string()), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    let run = bin()
+        .arg("denoise")
+        .arg(fixture("cornell_0032spp.exr"))
+        .arg("-o")
+        .arg(dir.path().join("o.exr"))
+        .args(["--memory-limit", "1K"])
+        .assert()
+        .failure()
+        .code(1);
+    let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+    assert_eq!(err.matches("raise --memory-limit").count(), 1, "{err}");
+}
