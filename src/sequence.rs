@@ -370,6 +370,29 @@ mod tests {
         assert_eq!(parse_frames("0-999999").unwrap().len(), MAX_FRAMES);
     }
 
+    proptest::proptest! {
+        /// Any frame list either parses to sorted distinct frames or is an
+        /// error; never a panic.
+        #[test]
+        fn frame_lists_never_panic(spec in "[0-9x, -]{0,24}") {
+            if let Ok(frames) = parse_frames(&spec) {
+                proptest::prop_assert!(frames.windows(2).all(|w| w[0] < w[1]));
+                proptest::prop_assert!(frames.len() <= MAX_FRAMES);
+            }
+        }
+
+        /// Any file name either has no pattern, one pattern, or an error;
+        /// a pattern's frame numbers read back as the frames they spell.
+        #[test]
+        fn patterns_never_panic_and_round_trip(name in "[a.#%0-9d]{0,16}", frame in proptest::num::i64::ANY) {
+            if let Ok(Some(p)) = FramePattern::parse(Path::new(&name)) {
+                let number = p.number(frame);
+                proptest::prop_assert_eq!(number.parse::<i64>().unwrap(), frame);
+                proptest::prop_assert!(p.file_name(frame).starts_with(&p.prefix));
+            }
+        }
+    }
+
     #[test]
     fn discovery_matches_the_spelling_exactly() {
         let dir = tempfile::tempdir().unwrap();
