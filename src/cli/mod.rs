@@ -168,7 +168,7 @@ pub fn main() -> ExitCode {
     let _ = ctrlc::set_handler(|| {
         progress::finish();
         nldenoise::exrio::remove_unfinished_outputs();
-        eprintln!("error: interrupted; no output written");
+        eprintln!("error: interrupted; the unfinished output was removed (frames a batch completed before stay)");
         std::process::exit(130);
     });
     init_logging(cli.verbose, cli.quiet);
