@@ -371,3 +371,41 @@ fn thousands_of_channels_are_carried() {
     let e = stderr(&run(&denoise_args(&input, &out, &["--map", "color=x,y,z"])));
     assert!(e.contains("3009 channels in all") && e.len() < 4000, "{}", e.len());
 }
+
+#[test]
+fn an_interrupted_batch_keeps_its_finished_frames_only() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "s.0001.exr", &small_frame(30, 20, &[]));
+    // Several seconds of filtering: the signal comes while it is written.
+    write(dir.path(), "s.0002.exr", &small_frame(800, 600, &[]));
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let mut child = Command::new(exe())
+        .args(["denoise".as_ref(), dir.path().join("s.####.exr").as_os_str(), "-o".as_ref(), out.as_os_str()])
+        .args(["--search-radius", "10", "--tile-size", "32", "--threads", "1"])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let second_started = || {
+        std::fs::read_dir(&out).unwrap().flatten().any(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.contains(".nldenoise-") && name.contains("s.0002")
+        })
+    };
+    while !second_started() {
+        assert!(t0.elapsed() < Duration::from_secs(60), "the second frame's temporary output never appeared");
+        assert!(child.try_wait().unwrap().is_none(), "finished before it could be interrupted");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    assert!(child.try_wait().unwrap().is_none(), "finished before it could be interrupted");
+    // SAFETY: plain kill(2) of our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    let left: Vec<String> =
+        std::fs::read_dir(&out).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
+    assert_eq!(left, ["s.0001.exr"], "only the finished frame stays");
+    assert!(exrio::read_frame(&out.join("s.0001.exr")).is_ok());
+}
