@@ -597,7 +597,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                             };
                             *row = LaneRow { w, t: t.unwrap_or(&[]), x0: lane.acc.x0, dx: lane.dx };
                         }
-                        accumulate::<W>(
+                        accumulate::<W, AVX512>(
                             &mut num[j],
                             &mut den[j],
                             &job.values,
@@ -964,7 +964,7 @@ fn window_columns(
 /// whichever loop handles the pixel, so the result equals accumulating the
 /// offsets one after the other.
 #[inline(always)]
-fn accumulate<const W: usize>(
+fn accumulate<const W: usize, const AVX512: bool>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
@@ -999,20 +999,20 @@ fn accumulate<const W: usize>(
         // Every lane's row is split alike (the same window rows), and only
         // with three channels.
         match (rows.len(), rows[0].t.is_empty()) {
-            (1, true) => accumulate_span::<W, 1, false>(num, den, values, rows, at),
-            (2, true) => accumulate_span::<W, 2, false>(num, den, values, rows, at),
-            (3, true) => accumulate_span::<W, 3, false>(num, den, values, rows, at),
-            (4, true) => accumulate_span::<W, 4, false>(num, den, values, rows, at),
-            (5, true) => accumulate_span::<W, 5, false>(num, den, values, rows, at),
-            (6, true) => accumulate_span::<W, 6, false>(num, den, values, rows, at),
-            (_, true) => accumulate_span::<W, GROUP_MAX, false>(num, den, values, rows, at),
-            (1, false) => accumulate_span::<W, 1, true>(num, den, values, rows, at),
-            (2, false) => accumulate_span::<W, 2, true>(num, den, values, rows, at),
-            (3, false) => accumulate_span::<W, 3, true>(num, den, values, rows, at),
-            (4, false) => accumulate_span::<W, 4, true>(num, den, values, rows, at),
-            (5, false) => accumulate_span::<W, 5, true>(num, den, values, rows, at),
-            (6, false) => accumulate_span::<W, 6, true>(num, den, values, rows, at),
-            (_, false) => accumulate_span::<W, GROUP_MAX, true>(num, den, values, rows, at),
+            (1, true) => accumulate_span::<W, 1, false, AVX512>(num, den, values, rows, at),
+            (2, true) => accumulate_span::<W, 2, false, AVX512>(num, den, values, rows, at),
+            (3, true) => accumulate_span::<W, 3, false, AVX512>(num, den, values, rows, at),
+            (4, true) => accumulate_span::<W, 4, false, AVX512>(num, den, values, rows, at),
+            (5, true) => accumulate_span::<W, 5, false, AVX512>(num, den, values, rows, at),
+            (6, true) => accumulate_span::<W, 6, false, AVX512>(num, den, values, rows, at),
+            (_, true) => accumulate_span::<W, GROUP_MAX, false, AVX512>(num, den, values, rows, at),
+            (1, false) => accumulate_span::<W, 1, true, AVX512>(num, den, values, rows, at),
+            (2, false) => accumulate_span::<W, 2, true, AVX512>(num, den, values, rows, at),
+            (3, false) => accumulate_span::<W, 3, true, AVX512>(num, den, values, rows, at),
+            (4, false) => accumulate_span::<W, 4, true, AVX512>(num, den, values, rows, at),
+            (5, false) => accumulate_span::<W, 5, true, AVX512>(num, den, values, rows, at),
+            (6, false) => accumulate_span::<W, 6, true, AVX512>(num, den, values, rows, at),
+            (_, false) => accumulate_span::<W, GROUP_MAX, true, AVX512>(num, den, values, rows, at),
         }
     }
 }
@@ -1021,7 +1021,7 @@ fn accumulate<const W: usize>(
 /// (with `SPLIT`, each lane's weights are `w + t`: three channels only).
 #[inline(always)]
 #[allow(clippy::type_complexity)]
-fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool>(
+fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool, const AVX512: bool>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
@@ -1039,6 +1039,28 @@ fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool>(
     }
     let q = |c: usize| lane_values::<G>(values[c], rows, y + dy, c0, c1);
     let d = &mut den[span.clone()];
+    #[cfg(target_arch = "x86_64")]
+    if AVX512
+        && G >= 2
+        && let [n0, n1, n2] = num
+        && let Some((dmin, rev)) = consecutive_dx(rows)
+    {
+        // The lanes read one row per channel at consecutive shifts: two
+        // loads per vector and register shifts instead of a load per lane.
+        let row = |c: usize| values[c].row(y + dy, c0 + dmin, c1 + dmin + G as i64 - 1);
+        let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
+        let rows3 = [row(0), row(1), row(2)];
+        // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper, which
+        // runs only on CPUs with avx512f and fma.
+        unsafe {
+            if rev {
+                fused_rgb_shifted_avx512::<G, SPLIT, true>([d, n0, n1, n2], [w, t], rows3);
+            } else {
+                fused_rgb_shifted_avx512::<G, SPLIT, false>([d, n0, n1, n2], [w, t], rows3);
+            }
+        }
+        return;
+    }
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
         let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
@@ -1062,6 +1084,108 @@ fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool>(
                 nc[i] = a;
             }
         }
+    }
+}
+
+/// When the lanes' `dx` are consecutive (`dx_g = dx_0 + g` or `dx_0 - g`,
+/// as in a whole group of the schedule), the smallest `dx` and whether they
+/// decrease.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn consecutive_dx(rows: &[LaneRow<'_>]) -> Option<(i64, bool)> {
+    let s = rows[1].dx - rows[0].dx;
+    if (s != 1 && s != -1) || !rows.windows(2).all(|r| r[1].dx - r[0].dx == s) {
+        return None;
+    }
+    Some((rows.iter().map(|r| r.dx).min()?, s == -1))
+}
+
+/// [`fused_rgb`] for `G <= 7` lanes of consecutive `dx` on the AVX-512 tier:
+/// `rows[c]` is channel `c`'s row from the smallest `dx` (`len + G - 1`
+/// samples), lane `g` reads it from offset `g` (or `G - 1 - g` with `REV`).
+/// Each vector of a lane is formed from the row's two vectors at the
+/// sample (`valignd`) instead of a load of its own: unaligned 64-byte loads
+/// split across cache lines, and the lanes' seven of them per channel cost
+/// the accumulation 5-7 % of the filter's time (docs/performance.md,
+/// session 21). Every sample gets [`fused_rgb`]'s operations in its order
+/// (the lanes' terms in lane order, one fused multiply-add each), so the
+/// same bits; the samples after the last whole vector as `fused_rgb`'s rest.
+///
+/// # Safety
+/// The CPU must support AVX-512F and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+#[allow(clippy::needless_range_loop)]
+unsafe fn fused_rgb_shifted_avx512<const G: usize, const SPLIT: bool, const REV: bool>(
+    [d, n0, n1, n2]: [&mut [f32]; 4],
+    [w, t]: [[&[f32]; G]; 2],
+    rows: [&[f32]; 3],
+) {
+    use std::arch::x86_64::*;
+    const { assert!(G >= 1 && G <= 7) };
+    let n = d.len();
+    let len = n + G - 1;
+    let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
+    let rows = cut(rows, len);
+    let w = cut(w, n);
+    let t = if SPLIT { cut(t, n) } else { t };
+    let off = |g: usize| if REV { G - 1 - g } else { g };
+    // Lane `j` of `sh!(k, a, b)` is `a[j + k]`, or `b[j + k - 16]`.
+    macro_rules! sh {
+        ($k:literal, $a:expr, $b:expr) => {
+            _mm512_castsi512_ps(_mm512_alignr_epi32::<$k>(_mm512_castps_si512($b), _mm512_castps_si512($a)))
+        };
+    }
+    for c in 0..n / 16 {
+        let i = c * 16;
+        // Samples `i + 16..` of a row: the first `G - 1` always exist
+        // (`i + 16 <= n`); lanes past the row's end are masked off, never read.
+        let rest = len - (i + 16);
+        let k: __mmask16 = if rest >= 16 { 0xFFFF } else { (1u16 << rest) - 1 };
+        let mut v = [[_mm512_setzero_ps(); 7]; 3];
+        for (vc, row) in v.iter_mut().zip(rows) {
+            // SAFETY: `i + 16 <= n <= len`, and the mask keeps the second
+            // load inside the row.
+            let (a, b) = unsafe {
+                (_mm512_loadu_ps(row.as_ptr().add(i)), _mm512_maskz_loadu_ps(k, row.as_ptr().wrapping_add(i + 16)))
+            };
+            *vc = [a, sh!(1, a, b), sh!(2, a, b), sh!(3, a, b), sh!(4, a, b), sh!(5, a, b), sh!(6, a, b)];
+        }
+        // SAFETY (every load and store below): `i + 16 <= n`, the length of
+        // each of these rows.
+        unsafe {
+            let mut dd = _mm512_loadu_ps(d.as_ptr().add(i));
+            let mut a0 = _mm512_loadu_ps(n0.as_ptr().add(i));
+            let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
+            let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
+            for g in 0..G {
+                let mut wg = _mm512_loadu_ps(w[g].as_ptr().add(i));
+                if SPLIT {
+                    wg = _mm512_add_ps(wg, _mm512_loadu_ps(t[g].as_ptr().add(i)));
+                }
+                let o = off(g);
+                dd = _mm512_add_ps(dd, wg);
+                a0 = _mm512_fmadd_ps(wg, v[0][o], a0);
+                a1 = _mm512_fmadd_ps(wg, v[1][o], a1);
+                a2 = _mm512_fmadd_ps(wg, v[2][o], a2);
+            }
+            _mm512_storeu_ps(d.as_mut_ptr().add(i), dd);
+            _mm512_storeu_ps(n0.as_mut_ptr().add(i), a0);
+            _mm512_storeu_ps(n1.as_mut_ptr().add(i), a1);
+            _mm512_storeu_ps(n2.as_mut_ptr().add(i), a2);
+        }
+    }
+    for i in n / 16 * 16..n {
+        let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
+        for g in 0..G {
+            let wg = if SPLIT { w[g][i] + t[g][i] } else { w[g][i] };
+            let o = off(g);
+            dd += wg;
+            a0 = wg.mul_add(rows[0][i + o], a0);
+            a1 = wg.mul_add(rows[1][i + o], a1);
+            a2 = wg.mul_add(rows[2][i + o], a2);
+        }
+        (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
     }
 }
 
