@@ -51,11 +51,11 @@ def rel_mse(x, ref):
     return float(np.mean((x - ref) ** 2 / (ref**2 + 0.01)))
 
 
-def ours(noisy, out, extra):
+def ours(noisy, given, out, extra):
     t = time.perf_counter()
     subprocess.run([binary, "-q", "denoise", noisy, "-o", out, "--threads", "2", *extra], check=True)
     seconds = time.perf_counter() - t
-    got, given = channels(out), channels(noisy)
+    got = channels(out)
     if sorted(got) != sorted(given):
         sys.exit(f"{out}: OpenEXR reads channels {sorted(got)}, the input has {sorted(given)}")
     for name, values in given.items():
@@ -82,8 +82,8 @@ with tempfile.TemporaryDirectory() as tmp:
         colour = np.ascontiguousarray(np.maximum(rgb(ch), 0))
         albedo = np.ascontiguousarray(np.clip(rgb(ch, "albedo."), 0, 1))
         normal = np.ascontiguousarray(np.clip(np.stack([ch["N." + c] for c in "XYZ"], -1).astype(np.float32), -1, 1))
-        default, t_default = ours(noisy, os.path.join(tmp, "default.exr"), [])
-        layers, t_layers = ours(noisy, os.path.join(tmp, "layers.exr"), ["--layers", "auto"])
+        default, t_default = ours(noisy, ch, os.path.join(tmp, "default.exr"), [])
+        layers, t_layers = ours(noisy, ch, os.path.join(tmp, "layers.exr"), ["--layers", "auto"])
         o_aux, t_aux = oidn(colour, albedo, normal)
         o_col, t_col = oidn(colour)
         rows.append((name, rel_mse(rgb(ch), ref), (rel_mse(default, ref), t_default), (rel_mse(layers, ref), t_layers),

@@ -65,18 +65,10 @@ pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
     let params = a.filter.params()?;
     let jobs = sequence::plan(&a.inputs, &a.output, a.frames.as_deref())?;
     let batch = jobs.len() > 1 || jobs[0].frame.is_some();
-    if !batch {
-        let job = &jobs[0];
-        if a.skip_existing && job.output.exists() {
-            info!("{} exists, skipped (--skip-existing)", job.output.display());
-            return Ok(());
-        }
-        super::progress::start(job.input.display().to_string());
-        let done = denoise_one(&a, &params, &job.input, &job.output);
-        super::progress::finish();
-        done?;
-    } else {
+    if batch {
         run_batch(&a, &params, &jobs)?;
+    } else {
+        run_job(&a, &params, &jobs[0], "")?;
     }
     if let Some(peak) = budget::peak_rss_bytes() {
         info!("peak resident memory: {:.1} MiB", peak as f64 / 1048576.0);
@@ -91,19 +83,12 @@ fn run_batch(a: &DenoiseArgs, params: &nldenoise::filter::Params, jobs: &[sequen
     let n = jobs.len();
     let (mut done, mut skipped, mut failed) = (0, 0, Vec::new());
     for (i, job) in jobs.iter().enumerate() {
-        let at = format!("[{}/{n}]", i + 1);
-        if a.skip_existing && job.output.exists() {
-            info!("{at} {} exists, skipped (--skip-existing)", job.output.display());
-            skipped += 1;
-            continue;
-        }
-        super::progress::start(format!("{at} {}", job.input.display()));
-        let done_one = denoise_one(a, params, &job.input, &job.output);
-        super::progress::finish();
-        match done_one {
-            Ok(()) => done += 1,
+        let at = format!("[{}/{n}] ", i + 1);
+        match run_job(a, params, job, &at) {
+            Ok(true) => done += 1,
+            Ok(false) => skipped += 1,
             Err(e) if a.keep_going => {
-                error!("{at} {}", super::report(&e));
+                error!("{at}{}", super::report(&e));
                 failed.push(job.input.display().to_string());
             }
             Err(e) => bail!(
@@ -123,6 +108,19 @@ fn run_batch(a: &DenoiseArgs, params: &nldenoise::filter::Params, jobs: &[sequen
         bail!("{} of {n} frames failed: {}", failed.len(), failed.join(", "));
     }
     Ok(())
+}
+
+/// One job, its log lines and progress bar labelled with `at`: `Ok(false)`
+/// when `--skip-existing` finds its output, `Ok(true)` once denoised.
+fn run_job(a: &DenoiseArgs, params: &nldenoise::filter::Params, job: &sequence::Job, at: &str) -> anyhow::Result<bool> {
+    if a.skip_existing && job.output.exists() {
+        info!("{at}{} exists, skipped (--skip-existing)", job.output.display());
+        return Ok(false);
+    }
+    super::progress::start(format!("{at}{}", job.input.display()));
+    let done = denoise_one(a, params, &job.input, &job.output);
+    super::progress::finish();
+    done.map(|()| true)
 }
 
 /// One frame: streamed through the tiled engine, or whole (`--tile-size 0`).

@@ -180,6 +180,11 @@ fn write_sequence(dir: &Path, frames: &[i64]) {
     }
 }
 
+/// A finished command's standard error.
+fn stderr_of(run: &assert_cmd::assert::Assert) -> String {
+    String::from_utf8_lossy(&run.get_output().stderr).into_owned()
+}
+
 fn files_in(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> =
         std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
@@ -269,7 +274,7 @@ fn a_bad_frame_stops_the_batch_or_is_listed_with_keep_going() {
         .assert()
         .failure()
         .code(1);
-    let err = String::from_utf8_lossy(&stopped.get_output().stderr).into_owned();
+    let err = stderr_of(&stopped);
     assert!(err.contains("shot.0002.exr") && err.contains("stopped at frame 2 of 4"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     // Frame 1 was written, nothing after the failure, no temporary file left.
@@ -283,7 +288,7 @@ fn a_bad_frame_stops_the_batch_or_is_listed_with_keep_going() {
         .assert()
         .failure()
         .code(1);
-    let err = String::from_utf8_lossy(&went_on.get_output().stderr).into_owned();
+    let err = stderr_of(&went_on);
     assert!(
         err.contains("2 of 4 frames failed") && err.contains("shot.0002.exr") && err.contains("shot.0004.exr"),
         "{err}"
@@ -305,7 +310,7 @@ fn batch_arguments_are_checked_before_any_frame_runs() {
     ];
     for (inputs, output, extra, message) in cases {
         let run = bin().arg("denoise").args(&inputs).arg("-o").arg(&output).args(&extra).assert().failure().code(1);
-        let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+        let err = stderr_of(&run);
         assert!(err.contains(message), "{inputs:?} -> {output:?}: {err}");
     }
     assert_eq!(files_in(dir.path()), ["shot.0007.exr"], "nothing may be written");
@@ -316,7 +321,7 @@ fn an_error_names_its_cause_once() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("missing.exr");
     let run = bin().arg("denoise").arg(&missing).arg("-o").arg(dir.path().join("o.exr")).assert().failure().code(1);
-    let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+    let err = stderr_of(&run);
     assert!(err.contains(&missing.display().to_string()), "{err}");
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
     let run = bin()
@@ -328,6 +333,6 @@ fn an_error_names_its_cause_once() {
         .assert()
         .failure()
         .code(1);
-    let err = String::from_utf8_lossy(&run.get_output().stderr).into_owned();
+    let err = stderr_of(&run);
     assert_eq!(err.matches("raise --memory-limit").count(), 1, "{err}");
 }

@@ -274,35 +274,48 @@ fn a_full_disk_leaves_no_output_and_names_the_path() {
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
+/// Run `denoise INPUT -o OUTPUT` slowly (r = 10, tiles of 32, one thread)
+/// and send it `signal` once a temporary output whose name holds `part`
+/// appears in `out_dir`; returns its exit status.
+fn signal_while_writing(
+    input: &Path,
+    output: &Path,
+    out_dir: &Path,
+    part: &str,
+    signal: i32,
+) -> std::process::ExitStatus {
+    let mut child = Command::new(exe())
+        .args(["denoise".as_ref(), input.as_os_str(), "-o".as_ref(), output.as_os_str()])
+        .args(["--search-radius", "10", "--tile-size", "32", "--threads", "1"])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let writing = || {
+        std::fs::read_dir(out_dir).unwrap().flatten().any(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.contains(".nldenoise-") && name.contains(part)
+        })
+    };
+    while !writing() {
+        assert!(t0.elapsed() < Duration::from_secs(60), "no temporary output for {part:?} appeared");
+        assert!(child.try_wait().unwrap().is_none(), "finished before it could be signalled");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    assert!(child.try_wait().unwrap().is_none(), "finished before it could be signalled");
+    // SAFETY: plain kill(2) of our own child.
+    unsafe { libc::kill(child.id() as i32, signal) };
+    child.wait().unwrap()
+}
+
 /// Start a slow denoise and signal it once its temporary output exists.
 fn kill_mid_frame(signal: i32) -> (tempfile::TempDir, PathBuf, std::process::ExitStatus) {
     let dir = tempfile::tempdir().unwrap();
     // Large enough (several seconds of filtering) that the run cannot end before the signal.
     let input = write(dir.path(), "in.exr", &small_frame(800, 600, &[]));
     let out = dir.path().join("out.exr");
-    let mut child = Command::new(exe())
-        .args(["denoise".as_ref(), input.as_os_str(), "-o".as_ref(), out.as_os_str()])
-        .args(["--search-radius", "10", "--tile-size", "32", "--threads", "1"])
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    let tmp_exists = || {
-        std::fs::read_dir(dir.path())
-            .unwrap()
-            .flatten()
-            .any(|e| e.file_name().to_string_lossy().contains(".nldenoise-"))
-    };
-    while !tmp_exists() {
-        assert!(t0.elapsed() < Duration::from_secs(60), "no temporary output appeared");
-        assert!(child.try_wait().unwrap().is_none(), "finished before it could be killed");
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    std::thread::sleep(Duration::from_millis(100));
-    assert!(child.try_wait().unwrap().is_none(), "finished before it could be killed");
-    // SAFETY: plain kill(2) of our own child.
-    unsafe { libc::kill(child.id() as i32, signal) };
-    let status = child.wait().unwrap();
+    let status = signal_while_writing(&input, &out, dir.path(), "", signal);
     assert!(!out.exists(), "a partial output appeared at the output path");
     assert!(exrio::read_frame(&input).is_ok(), "the input is intact");
     (dir, out, status)
@@ -380,29 +393,7 @@ fn an_interrupted_batch_keeps_its_finished_frames_only() {
     write(dir.path(), "s.0002.exr", &small_frame(800, 600, &[]));
     let out = dir.path().join("out");
     std::fs::create_dir(&out).unwrap();
-    let mut child = Command::new(exe())
-        .args(["denoise".as_ref(), dir.path().join("s.####.exr").as_os_str(), "-o".as_ref(), out.as_os_str()])
-        .args(["--search-radius", "10", "--tile-size", "32", "--threads", "1"])
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    let second_started = || {
-        std::fs::read_dir(&out).unwrap().flatten().any(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            name.contains(".nldenoise-") && name.contains("s.0002")
-        })
-    };
-    while !second_started() {
-        assert!(t0.elapsed() < Duration::from_secs(60), "the second frame's temporary output never appeared");
-        assert!(child.try_wait().unwrap().is_none(), "finished before it could be interrupted");
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    std::thread::sleep(Duration::from_millis(100));
-    assert!(child.try_wait().unwrap().is_none(), "finished before it could be interrupted");
-    // SAFETY: plain kill(2) of our own child.
-    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
-    let status = child.wait().unwrap();
+    let status = signal_while_writing(&dir.path().join("s.####.exr"), &out, &out, "s.0002", libc::SIGTERM);
     assert_eq!(status.code(), Some(130), "{status:?}");
     let left: Vec<String> =
         std::fs::read_dir(&out).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
