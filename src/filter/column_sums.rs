@@ -1,146 +1,247 @@
 //! Vertical window sums of a lane's rows (the second half of each separable
-//! box of SPEC §4), anchored to frame rows.
+//! box of SPEC §4), exact, so that no summation order can show in the bits.
 //!
-//! A whole window covers `T = 2f + 1` rows `[a, a + 2f]`. The frame's rows
-//! are cut into blocks of `T` rows starting at the multiples of `T` (frame
-//! coordinates, never a tile's or a block's), so a whole window is either one
-//! block or the tail of one block and the head of the next. Each block keeps
-//! two running sums of its rows `h`:
+//! A lane's box receives rows `h` (the horizontal window sums of its
+//! distances or weights, `f32`) one after the other. Each row is first
+//! *quantised*: `q = round(clamp(h, -H, H) * 2^s)` as a 32-bit integer,
+//! with `H` and `s` fixed by the box's [`Quantiser`] (a function of the
+//! filter's parameters, never of a tile or a block). Integer sums are exact
+//! whatever their order, so the vertical window sums are kept as a running
+//! sum `R(y) = R(y - 1) + q(y) - q(y - 2f - 1)`: two integer operations per
+//! sample, one pass per row, whichever row a block or tile starts at. A
+//! window's sum is `R` (or, for a window clipped by the offset's valid
+//! rectangle, the exact sum of its rows): the distances' box hands it to
+//! the weight's loop as an integer, which scales it by `2^-s` with the patch
+//! mean's factor (one multiply); the weights' box also keeps `f32(R)`, the
+//! mean weights in units of `2^-s` for the accumulation (numerators and
+//! denominator share the unit, which cancels exactly in their ratio: a power
+//! of two). Either is a function of the window's quantised rows alone: the
+//! same bits in every block, tile, lane and tier, as SPEC §6 requires
+//! ("anchor the running sums to frame coordinates": exact sums need no
+//! anchor).
 //!
-//! - the prefix `P[b] = ((h[s] + h[s + 1]) + ...) + h[b]` from the block's
-//!   first row `s`, updated as each row arrives (one add per sample);
-//! - the suffix `S[a] = h[a] + (h[a + 1] + (... + h[e]))` to its last row
-//!   `e`, computed when the block is complete (one add per sample).
+//! This replaced (session 23, docs/performance.md) the anchored `f32`
+//! prefix and suffix sums (van Herk / Gil-Werman) with one pass per row,
+//! instead of a prefix pass, a burst of suffix passes every `2f + 1` rows
+//! and an add in every consumer.
 //!
-//! A whole window is then `P[a + 2f]` when `a` starts a block and
-//! `S[a] + P[a + 2f]` otherwise: at most 2 adds per sample plus the two
-//! running sums, against `2f` adds for a direct sum (van Herk / Gil-Werman
-//! for sums). Each is a fixed expression of the window's samples chosen by
-//! frame coordinates alone, so whichever block, tile or lane computes a
-//! window gets the same bits, as SPEC §6 requires of running sums ("anchor
-//! the running sums to frame coordinates").
-//!
-//! A window clipped by the offset's valid rectangle adds its rows in
-//! increasing order from the ring of the last `T` rows.
-//!
-//! The methods that add rows take the tier's chunk width `W` of the row
-//! loops (`kernels::CHUNK`, or `kernels::CHUNK_AVX512`), which changes no
-//! bit (the tests compare both).
+//! The quantisation's step and clamp are chosen so that it changes a
+//! weight by a few parts per million at most (the clamp by nothing): see
+//! [`Quantiser::distances`] and [`Quantiser::weights`] for the bounds,
+//! tested below.
 
-use super::kernels::{chunk, chunk_mut, rows_sum};
 use super::nlmeans::{Aligned, stride};
 use crate::geom::Rect;
 
-/// The rows of one lane's box (distances or weights) within a step, with
-/// their frame-anchored running sums.
+/// How a box turns its `f32` rows into integers: `q = round(clamp(h, -H, H) * scale)`
+/// with `scale = 2^s`, and back: `f32(sum) * inv` with `inv = 2^-s`.
+///
+/// `H` and `s` satisfy `T * H * 2^s < 2^31` (`T = 2f + 1` rows per window),
+/// so no window sum can overflow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Quantiser {
+    /// `H * 2^s`: the clamp, applied after the scale.
+    limit: f32,
+    scale: f32,
+    inv: f32,
+}
+
+impl Quantiser {
+    /// The quantiser whose clamp is at least `h_max`, with the largest step
+    /// `2^s` that keeps `T` rows' sums below `2^31` (`T = cap`).
+    fn for_range(h_max: f64, cap: usize) -> Quantiser {
+        // A guard for degenerate parameters (`k = 0`): the step stays a
+        // normal power of two.
+        let h = h_max.clamp(1.0, 2f64.powi(90));
+        let s = ((2f64.powi(31) - 1.0) / (cap as f64 * h)).log2().floor() as i32;
+        let scale = 2f64.powi(s);
+        // `H * 2^s` below `2^31 / T` (an f32 just below it: no sum of `T` reaches `2^31`).
+        let limit = (h * scale) as f32;
+        let limit =
+            if (limit as f64) * cap as f64 >= 2f64.powi(31) { f32::from_bits(limit.to_bits() - 1) } else { limit };
+        Quantiser { limit, scale: scale as f32, inv: (1.0 / scale) as f32 }
+    }
+
+    /// For a box of colour distances: rows `h` are horizontal sums of up to
+    /// `T = 2f + 1` per-pixel distances `d`, each the sum over `channels`
+    /// of SPEC §2's `d2_c >= -alpha / k^2` (so `h >= -T * channels * alpha / k^2`).
+    ///
+    /// The clamp changes no weight: a whole window whose sum holds one row
+    /// clamped at `H` sums to at least `H - (T - 1) T channels alpha / k^2`,
+    /// and `H` is twice what makes that sum's weight `2^-126`, the floor of
+    /// `kernels::exp2_weight`, which the unclamped sum (larger) gives too.
+    /// A clipped window is a sum over fewer samples divided by a smaller
+    /// count: further below the floor. The quantisation error of a window's
+    /// sum is at most `T * 2^-(s+1)`, at most `T * 2^-(s+1) / (T^2 channels)`
+    /// in its patch mean: for `f = 3`, three channels and SPEC's `alpha` and
+    /// `k`, the step is `2^-13` (tested), so below 3e-6 in the patch distance
+    /// `D`, a relative change of at most 3e-6 in a weight `exp(-D)`.
+    pub(super) fn distances(cap: usize, channels: usize, alpha: f32, k2: f32) -> Quantiser {
+        let t = cap as f64;
+        let c = channels.max(1) as f64;
+        let dm = c * f64::from(alpha.max(0.0)) / f64::from(k2);
+        let dm = if dm.is_finite() { dm } else { f64::MAX };
+        // `exp2_weight`'s floor: a patch mean of at least 126 / log2(e).
+        let floor = 126.0 / std::f64::consts::LOG2_E * c * t * t;
+        Quantiser::for_range(2.0 * (floor + t * t * dm), cap)
+    }
+
+    /// For a box of weights: rows are horizontal sums of up to `T` weights
+    /// in `[0, 1]`, so at most `T`; the clamp at `T + 1` changes nothing
+    /// (it maps a NaN to `-H`). For `f = 3` the step is `2^-25`: a window's
+    /// sum (at most 49) is within `7 * 2^-26` of the exact sum of its
+    /// weights, the patches' mean weights within 2.1e-9 each.
+    pub(super) fn weights(cap: usize) -> Quantiser {
+        Quantiser::for_range(cap as f64 + 1.0, cap)
+    }
+
+    /// `round(clamp(h * 2^s, -H 2^s, H 2^s))`, NaN to `-H 2^s`.
+    #[inline(always)]
+    fn quantise(&self, h: f32) -> i32 {
+        // `max` returns its non-NaN operand; then the value is finite and
+        // within `i32`: the cast is exact.
+        // Two selects that compile to one `max` and one `min` (a NaN fails
+        // the first comparison and lands on `-H 2^s`).
+        let x = h * self.scale;
+        let x = if x > -self.limit { x } else { -self.limit };
+        let x = (if x < self.limit { x } else { self.limit }).round_ties_even();
+        // SAFETY: `x` is an integer in `[-2^31 / T, 2^31 / T]`, not NaN.
+        unsafe { x.to_int_unchecked::<i32>() }
+    }
+
+    /// `2^-s`: a sum of quantised rows is worth `sum * 2^-s`.
+    pub(super) fn step(&self) -> f32 {
+        self.inv
+    }
+}
+
+/// The rows of one lane's box (distances or weights) within a step, and
+/// their running window sums.
 pub(super) struct ColumnBox {
-    /// The last `T` rows `h` (row `y` in slot `(y - y0) % T`).
-    ring: Aligned,
-    /// The suffix sums `S` of the last complete block, in the same slots.
-    suffix: Aligned,
-    /// The prefix sum `P` of the current block up to the last row pushed.
-    prefix: Aligned,
+    /// The last `T` rows, quantised (row `y` in slot `(y - y0) % T`).
+    ring: Aligned<i32>,
+    /// The sum of the last `T` rows pushed (or of all rows, while fewer).
+    run: Aligned<i32>,
+    /// The row the producer writes, quantised when pushed.
+    stage: Aligned,
+    /// With `float_sums`, `run` as `f32` (in units of `2^-s`), once it
+    /// holds `T` rows: the last whole window's sums, for the accumulation.
+    sums: Aligned,
+    float_sums: bool,
+    /// A clipped window's integer sums.
+    clip_sums: Aligned<i32>,
     stride: usize,
     cap: usize,
-    /// The frame row `P` ends at (checked by debug builds).
-    prefix_row: i64,
+    q: Quantiser,
+    /// The frame row last pushed.
+    last_row: i64,
 }
 
 impl ColumnBox {
     /// Buffers for rows of up to `width` samples and windows of `cap = 2f + 1` rows.
-    pub(super) fn new(width: usize, cap: usize) -> ColumnBox {
+    /// With `float_sums`, the whole windows' sums are also kept as `f32`
+    /// ([`ColumnBox::whole`], [`ColumnBox::sums`]); without, they are read as
+    /// integers ([`ColumnBox::window`]).
+    pub(super) fn new(width: usize, cap: usize, q: Quantiser, float_sums: bool) -> ColumnBox {
         let st = stride(width);
         ColumnBox {
             ring: Aligned::zeroed(st * cap),
-            suffix: Aligned::zeroed(st * cap),
-            prefix: Aligned::zeroed(st),
+            run: Aligned::zeroed(st),
+            stage: Aligned::zeroed(st),
+            sums: Aligned::zeroed(if float_sums { st } else { 0 }),
+            float_sums,
+            clip_sums: Aligned::zeroed(st),
             stride: st,
             cap,
-            prefix_row: i64::MIN,
+            q,
+            last_row: i64::MIN,
         }
     }
 
-    /// Samples held: the ring, the suffixes and the prefix row.
+    /// How the box quantises its rows.
+    pub(super) fn quantiser(&self) -> Quantiser {
+        self.q
+    }
+
+    /// Samples (4 bytes each) held: the ring, the running sums, the staged
+    /// row, the window sums and a clipped window's sums.
     pub(super) fn samples(width: usize, cap: usize) -> u64 {
-        (stride(width) * (2 * cap + 1)) as u64
+        (stride(width) * (cap + 4)) as u64
     }
 
+    /// The row to write frame row `y` into, `w` samples; then call
+    /// [`ColumnBox::pushed`].
     #[inline(always)]
-    fn slot(&self, y: i64, y0: i64) -> usize {
-        debug_assert!(y >= y0, "row {y} before the step's first row {y0}");
-        (y - y0) as usize % self.cap
+    pub(super) fn row_mut(&mut self, _y: i64, _y0: i64, w: usize) -> &mut [f32] {
+        &mut self.stage[..w]
     }
 
-    /// The ring slot to write frame row `y` into (`y0`: the step's first row
-    /// of this box), `w` samples; then call [`ColumnBox::pushed`].
+    /// Row `y` (`w` samples; `y0`: the step's first row of this box, rows
+    /// pushed in order from it) was written: quantise it into the ring and
+    /// update the running sums (and, once they cover `T` rows, their `f32`
+    /// values), in one pass.
     #[inline(always)]
-    pub(super) fn row_mut(&mut self, y: i64, y0: i64, w: usize) -> &mut [f32] {
-        let at = self.slot(y, y0) * self.stride;
-        &mut self.ring[at..at + w]
-    }
-
-    /// Row `y` (`w` samples) was written: extend the block's prefix with it
-    /// and, when it ends its block, form the block's suffixes.
-    #[inline(always)]
-    pub(super) fn pushed<const W: usize>(&mut self, y: i64, y0: i64, w: usize) {
-        let t = self.cap as i64;
-        let at = self.slot(y, y0) * self.stride;
-        let (ring, prefix) = (&self.ring[at..at + w], &mut self.prefix[..w]);
-        let r = block_row(y, t);
-        if r == 0 || y == y0 {
-            prefix.copy_from_slice(ring);
+    pub(super) fn pushed(&mut self, y: i64, y0: i64, w: usize) {
+        debug_assert!(y == y0 || y == self.last_row + 1, "row {y} pushed after {}", self.last_row);
+        let k = (y - y0) as usize;
+        let at = k % self.cap * self.stride;
+        let q = self.q;
+        let (ring, run, stage) = (&mut self.ring[at..at + w], &mut self.run[..w], &self.stage[..w]);
+        if k == 0 {
+            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
+                let v = q.quantise(*h);
+                (*r, *s) = (v, v);
+            }
+        } else if k < self.cap {
+            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
+                let v = q.quantise(*h);
+                (*r, *s) = (v, s.wrapping_add(v));
+            }
         } else {
-            add_assign::<W>(prefix, ring);
-        }
-        self.prefix_row = y;
-        if r == t - 1 {
-            // `S[j] = S[j + 1] + h[j]` for `j` from `y - 1` down to the
-            // block's second row (its first is never needed: a window
-            // starting there is `P`), or to the step's first row.
-            let lo = (y - t + 2).max(y0);
-            if lo < y {
-                let rows = (y - lo) as usize;
-                let shape = (self.slot(y - 1, y0), self.cap, self.stride, w);
-                suffix_rows::<W>(&self.ring, &mut self.suffix, at, rows, shape);
+            // The slot holds row `y - T`, which leaves the window.
+            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
+                let v = q.quantise(*h);
+                (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
             }
         }
+        if self.float_sums && k + 1 >= self.cap {
+            for (o, s) in self.sums[..w].iter_mut().zip(self.run[..w].iter()) {
+                *o = *s as f32;
+            }
+        }
+        self.last_row = y;
     }
 
-    /// Window sums of row `y`: the vertical sums over `[y - f, y + f] ∩ clip`
-    /// (`y0`: the step's first row of this box); returns the window's
-    /// height. A whole window's last row must be the last row pushed.
+    /// Window sums of row `y` as `f32` in units of `2^-s` (a box with
+    /// `float_sums`): the vertical sums over `[y - f, y + f] ∩ clip` (`y0`:
+    /// the step's first row of this box); returns the window's height. A
+    /// whole window's last row must be the last row pushed.
     #[inline(always)]
-    pub(super) fn sums<const W: usize>(&self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
+    pub(super) fn sums(&mut self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
         let w = out.len();
         match self.whole(y0, y, clip, f, w) {
-            Ok((head, Some(tail))) => rows_sum::<W, 2>([head, tail], out),
-            Ok((head, None)) => out.copy_from_slice(head),
-            Err(count) => self.clipped::<W>(y0, y, clip, f, count, out),
+            Ok(sums) => out.copy_from_slice(sums),
+            Err(count) => {
+                for (o, s) in out.iter_mut().zip(self.clipped(y0, y, clip, f, count, w)) {
+                    *o = *s as f32;
+                }
+            }
         }
         self.height(y, clip, f)
     }
 
-    /// The window sums of row `y` (as [`ColumnBox::sums`], `w` samples) as
-    /// the rows whose sum they are: `head + tail`, or `head` alone (a
-    /// window starting a block: its prefix). A clipped window's sums are
-    /// written into `out`, which is then the head.
+    /// The integer window sums of row `y` (as [`ColumnBox::sums`], `w`
+    /// samples, worth `2^-s` each), with the window's height.
     #[inline(always)]
-    pub(super) fn window<'a, const W: usize>(
-        &'a self,
-        y0: i64,
-        y: i64,
-        clip: Rect,
-        f: i64,
-        out: &'a mut [f32],
-    ) -> (f32, &'a [f32], Option<&'a [f32]>) {
+    pub(super) fn window(&mut self, y0: i64, y: i64, clip: Rect, f: i64, w: usize) -> (f32, &[i32]) {
         let ny = self.height(y, clip, f);
-        match self.whole(y0, y, clip, f, out.len()) {
-            Ok((head, tail)) => (ny, head, tail),
-            Err(count) => {
-                self.clipped::<W>(y0, y, clip, f, count, out);
-                (ny, out, None)
-            }
+        let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
+        let count = (b - a + 1) as usize;
+        if count == self.cap {
+            debug_assert_eq!(self.last_row, b, "a whole window is summed right after its last row");
+            return (ny, &self.run[..w]);
         }
+        (ny, self.clipped(y0, y, clip, f, count, w))
     }
 
     /// The height of row `y`'s window.
@@ -149,226 +250,90 @@ impl ColumnBox {
         ((y + f).min(clip.y1 - 1) - (y - f).max(clip.y0) + 1) as f32
     }
 
-    /// A whole window's rows (see [`ColumnBox::window`]), or the height of
-    /// a clipped one.
+    /// A whole window's `f32` sums (`w` samples, a box with `float_sums`),
+    /// or the height of a clipped one.
     #[inline(always)]
-    pub(super) fn whole(
-        &self,
-        y0: i64,
-        y: i64,
-        clip: Rect,
-        f: i64,
-        w: usize,
-    ) -> Result<(&[f32], Option<&[f32]>), usize> {
+    pub(super) fn whole(&self, _y0: i64, y: i64, clip: Rect, f: i64, w: usize) -> Result<&[f32], usize> {
         let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
         let count = (b - a + 1) as usize;
         if count != self.cap {
             return Err(count);
         }
-        debug_assert_eq!(self.prefix_row, b, "a whole window is summed right after its last row");
-        let prefix = &self.prefix[..w];
-        let r = block_row(a, self.cap as i64) as usize;
-        if r == 0 {
-            return Ok((prefix, None));
-        }
-        let at = self.slot(a, y0) * self.stride;
-        // The block's last row is its own suffix.
-        let head = if r == self.cap - 1 { &self.ring[at..at + w] } else { &self.suffix[at..at + w] };
-        Ok((head, Some(prefix)))
+        debug_assert!(self.float_sums);
+        debug_assert_eq!(self.last_row, b, "a whole window is summed right after its last row");
+        Ok(&self.sums[..w])
     }
 
-    /// A clipped window's sums: its `count` rows added in increasing order.
+    /// A clipped window's sums: its `count` rows' exact integer sum.
     #[inline(always)]
-    fn clipped<const W: usize>(&self, y0: i64, y: i64, clip: Rect, f: i64, count: usize, out: &mut [f32]) {
+    fn clipped(&mut self, y0: i64, y: i64, clip: Rect, f: i64, count: usize, w: usize) -> &[i32] {
         let first = ((y - f).max(clip.y0) - y0) as usize;
-        ring_column_sums::<W>(&self.ring, self.stride, self.cap, first, count, out);
-    }
-}
-
-/// Row `y`'s index in its block of `t` rows (`y.rem_euclid(t)`, which the
-/// tier wrappers would call out of line).
-#[inline(always)]
-fn block_row(y: i64, t: i64) -> i64 {
-    let r = y % t;
-    if r < 0 { r + t } else { r }
-}
-
-/// The suffixes of a block's `rows` rows before its last (ring row at
-/// `last`), from the row in slot `first` back (slots wrap at `cap`, `stride`
-/// samples apart): `S = S_next + h` (`+` commutes exactly), the last row
-/// being its own suffix.
-#[inline(always)]
-fn suffix_rows<const W: usize>(
-    ring: &[f32],
-    suffix: &mut [f32],
-    last: usize,
-    rows: usize,
-    (first, cap, stride, w): (usize, usize, usize, usize),
-) {
-    // Row by row: the suffix just formed is read back from L1, and each
-    // row pays its set-up once rather than once per chunk.
-    let mut s = first;
-    for k in 0..rows {
-        let at = s * stride;
-        let h = &ring[at..at + w];
-        if k == 0 {
-            rows_sum::<W, 2>([&ring[last..last + w], h], &mut suffix[at..at + w]);
-        } else {
-            let from = if s + 1 == cap { 0 } else { s + 1 } * stride;
-            let (next, out) = rows_pair(suffix, from, at, w);
-            rows_sum::<W, 2>([next, h], out);
+        let acc = &mut self.clip_sums[..w];
+        for k in 0..count {
+            let at = (first + k) % self.cap * self.stride;
+            let row = &self.ring[at..at + w];
+            if k == 0 {
+                acc.copy_from_slice(row);
+            } else {
+                for (a, r) in acc.iter_mut().zip(row) {
+                    *a = a.wrapping_add(*r);
+                }
+            }
         }
-        s = if s == 0 { cap - 1 } else { s - 1 };
-    }
-}
-
-/// Row `from` of `buf` to read and row `to` to write (distinct, `w` samples each).
-#[inline(always)]
-fn rows_pair(buf: &mut [f32], from: usize, to: usize, w: usize) -> (&[f32], &mut [f32]) {
-    if from < to {
-        let (a, b) = buf.split_at_mut(to);
-        (&a[from..from + w], &mut b[..w])
-    } else {
-        let (a, b) = buf.split_at_mut(from);
-        (&b[..w], &mut a[to..to + w])
-    }
-}
-
-/// `a += b`.
-#[inline(always)]
-fn add_assign<const W: usize>(a: &mut [f32], b: &[f32]) {
-    let n = a.len();
-    let b = &b[..n];
-    if n < W {
-        for (x, y) in a.iter_mut().zip(b) {
-            *x += *y;
-        }
-        return;
-    }
-    // Whole chunks, then the rest (an update in place: no overlapping chunk).
-    let whole = n / W * W;
-    for i in (0..whole).step_by(W) {
-        let (mut x, y) = (*chunk::<W>(a, i), chunk::<W>(b, i));
-        for k in 0..W {
-            x[k] += y[k];
-        }
-        *chunk_mut::<W>(a, i) = x;
-    }
-    for i in whole..n {
-        a[i] += b[i];
-    }
-}
-
-/// `out = rows[first] + rows[first + 1] + ...` (`count` rows, in increasing
-/// order), where row `k` is stored in slot `k % cap` of `ring`, slots
-/// `stride` samples apart.
-#[inline(always)]
-pub(super) fn ring_column_sums<const W: usize>(
-    ring: &[f32],
-    stride: usize,
-    cap: usize,
-    first: usize,
-    count: usize,
-    out: &mut [f32],
-) {
-    let w = out.len();
-    let row = |i: usize| {
-        let slot = (first + i) % cap;
-        &ring[slot * stride..slot * stride + w]
-    };
-    out.copy_from_slice(row(0));
-    for i in 1..count {
-        add_assign::<W>(out, row(i));
+        acc
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::kernels::exp2_weight;
 
-    /// Push rows `y0..y1` of `h` (row `y` = `h(y)`) and collect the window
-    /// sums of every row whose window is complete, as the kernel does.
-    /// Every chunk width of the tiers gives the same bits.
-    fn run(h: &dyn Fn(i64, usize) -> f32, w: usize, f: i64, y0: i64, y1: i64, clip: Rect) -> Vec<(i64, Vec<f32>)> {
-        use crate::filter::kernels::{CHUNK, CHUNK_AVX512};
-        let narrow = run_with::<CHUNK>(h, w, f, y0, y1, clip);
-        let bits = |v: &[(i64, Vec<f32>)]| {
-            v.iter().map(|(y, r)| (*y, r.iter().map(|x| x.to_bits()).collect::<Vec<_>>())).collect::<Vec<_>>()
-        };
-        assert_eq!(bits(&run_with::<CHUNK_AVX512>(h, w, f, y0, y1, clip)), bits(&narrow), "chunk widths");
-        narrow
+    /// Values whose `f32` sums would round differently in different orders.
+    fn value(y: i64, i: usize) -> f32 {
+        let s = ((y * 7919 + i as i64 * 104729) % 1000) as f32;
+        (s * 0.001 + 1.0) * if (y + i as i64) % 3 == 0 { 1e3 } else { 1.1e-3 }
     }
 
-    fn run_with<const W: usize>(
-        h: &dyn Fn(i64, usize) -> f32,
-        w: usize,
-        f: i64,
-        y0: i64,
-        y1: i64,
-        clip: Rect,
-    ) -> Vec<(i64, Vec<f32>)> {
+    /// Push rows `y0..y1` (row `y` = `value(y)`) and collect the integer and
+    /// `f32` window sums of every row whose window is complete, as the
+    /// kernel does.
+    fn run(q: Quantiser, w: usize, f: i64, y0: i64, y1: i64, clip: Rect) -> Vec<(i64, Vec<i32>, Vec<f32>)> {
         let cap = (2 * f + 1) as usize;
-        let mut b = ColumnBox::new(w, cap);
+        let mut b = ColumnBox::new(w, cap, q, true);
         let mut out = Vec::new();
         // Rows whose window lies in the rows pushed (or is clipped at the top).
         let mut next = if y0 == clip.y0 { y0 } else { y0 + f };
         for y in y0..y1 {
             for (i, v) in b.row_mut(y, y0, w).iter_mut().enumerate() {
-                *v = h(y, i);
+                *v = value(y, i);
             }
-            b.pushed::<W>(y, y0, w);
+            b.pushed(y, y0, w);
             while next < y1 && (next + f).min(clip.y1 - 1) <= y {
-                let mut o = vec![0.0; w];
-                b.sums::<W>(y0, next, clip, f, &mut o);
-                out.push((next, o));
+                let mut floats = vec![0.0; w];
+                b.sums(y0, next, clip, f, &mut floats);
+                let ints = b.window(y0, next, clip, f, w).1.to_vec();
+                out.push((next, ints, floats));
                 next += 1;
             }
         }
         out
     }
 
-    fn value(y: i64, i: usize) -> f32 {
-        // Values whose sums round differently in different orders.
-        let s = ((y * 7919 + i as i64 * 104729) % 1000) as f32;
-        (s * 0.001 + 1.0) * if (y + i as i64) % 3 == 0 { 1e3 } else { 1.1e-3 }
-    }
-
-    /// The expression of the module's doc, computed directly.
-    fn expected(y: i64, i: usize, f: i64, clip: Rect) -> f32 {
-        let t = 2 * f + 1;
-        let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
-        if b - a + 1 != t {
-            let mut acc = value(a, i);
-            for j in a + 1..=b {
-                acc += value(j, i);
-            }
-            return acc;
-        }
-        let s = b - b.rem_euclid(t);
-        let mut p = value(s, i);
-        for j in s + 1..=b {
-            p += value(j, i);
-        }
-        if a == s {
-            return p;
-        }
-        let mut q = value(s - 1, i);
-        for j in (a..s - 1).rev() {
-            q += value(j, i);
-        }
-        q + p
-    }
-
     #[test]
-    fn anchored_sums_match_their_expression_whatever_the_first_row() {
+    fn window_sums_are_the_exact_sums_of_the_quantised_rows_whatever_the_first_row() {
         for f in [0, 1, 2, 3, 5] {
+            let cap = (2 * f + 1) as usize;
+            let q = Quantiser::for_range(2000.0, cap);
             for w in [5, 16, 37, 150] {
                 let clip = Rect { x0: 0, x1: w as i64, y0: -11, y1: 40 };
                 for y0 in [-11, -9, -4, 0, 3, 6] {
-                    for (y, row) in run(&value, w, f, y0, clip.y1, clip) {
-                        for (i, v) in row.iter().enumerate() {
-                            let e = expected(y, i, f, clip);
-                            assert_eq!(v.to_bits(), e.to_bits(), "f {f} w {w} first row {y0}: row {y} col {i}");
+                    for (y, ints, floats) in run(q, w, f, y0, clip.y1, clip) {
+                        let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
+                        for i in 0..w {
+                            let exact: i64 = (a..=b).map(|j| i64::from(q.quantise(value(j, i)))).sum();
+                            assert_eq!(i64::from(ints[i]), exact, "f {f} w {w} first row {y0}: row {y} col {i}");
+                            assert_eq!(floats[i].to_bits(), (exact as f32).to_bits(), "row {y} col {i}");
                         }
                     }
                 }
@@ -377,16 +342,51 @@ mod tests {
     }
 
     #[test]
-    fn anchored_sums_are_window_sums() {
+    fn window_sums_are_within_half_a_step_per_row_of_the_real_sums() {
         let (f, w) = (3, 20);
+        let q = Quantiser::for_range(2000.0, 7);
         let clip = Rect { x0: 0, x1: w as i64, y0: 0, y1: 30 };
-        let rows = run(&value, w, f, 0, 30, clip);
+        let rows = run(q, w, f, 0, 30, clip);
         assert_eq!(rows.len(), 30);
-        for (y, row) in rows {
-            for (i, v) in row.iter().enumerate() {
-                let exact: f64 = ((y - f).max(0)..=(y + f).min(29)).map(|j| value(j, i) as f64).sum();
-                assert!(((*v as f64) - exact).abs() <= 1e-5 * exact, "row {y} col {i}: {v} vs {exact}");
+        for (y, ints, _) in rows {
+            let (a, b) = ((y - f).max(0), (y + f).min(29));
+            for (i, v) in ints.iter().enumerate() {
+                let real: f64 = (a..=b).map(|j| value(j, i) as f64).sum();
+                let bound = (b - a + 1) as f64 * 0.5 * q.step() as f64;
+                let got = *v as f64 * q.step() as f64;
+                assert!((got - real).abs() <= bound, "row {y} col {i}: {got} vs {real}");
             }
         }
+    }
+
+    #[test]
+    fn quantise_clamps_and_maps_nan_to_the_lower_clamp() {
+        let q = Quantiser::for_range(100.0, 7);
+        let top = q.quantise(f32::INFINITY);
+        assert_eq!(q.quantise(1e30), top);
+        assert_eq!(q.quantise(-1e30), -top);
+        assert_eq!(q.quantise(f32::NAN), -top);
+        // No sum of `T` rows can overflow.
+        assert!(7 * i64::from(top) < 1 << 31);
+        assert!(f64::from(top) * f64::from(q.step()) >= 100.0);
+    }
+
+    /// The steps the docs state for SPEC's defaults (f = 3, three channels,
+    /// alpha = 1, k = 0.45), and the distance clamp's claim: a whole window
+    /// holding one row at the clamp and every other sample at the smallest
+    /// distance gets `exp2_weight`'s floor.
+    #[test]
+    fn default_steps_and_the_distance_clamp_change_no_weight() {
+        let (cap, channels, alpha, k2) = (7usize, 3usize, 1.0f32, 0.45f32 * 0.45);
+        let q = Quantiser::distances(cap, channels, alpha, k2);
+        assert_eq!(q.step(), 2f32.powi(-13));
+        assert_eq!(Quantiser::weights(cap).step(), 2f32.powi(-25));
+        let t = cap as f64;
+        let h = f64::from(q.quantise(f32::INFINITY)) * f64::from(q.step());
+        // Each of the other six rows: seven pixels at `-channels * alpha / k^2`.
+        let lowest = -(t - 1.0) * t * channels as f64 * f64::from(alpha) / f64::from(k2);
+        let mean = (h + lowest) / (channels as f64 * t * t);
+        let arg = (-mean * std::f64::consts::LOG2_E) as f32;
+        assert_eq!(exp2_weight(arg), exp2_weight(-1e30), "mean {mean}");
     }
 }

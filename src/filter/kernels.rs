@@ -289,6 +289,16 @@ pub fn chunk<const W: usize>(s: &[f32], i: usize) -> &[f32; W] {
     unsafe { &*s.as_ptr().add(i).cast::<[f32; W]>() }
 }
 
+/// A copy of the chunk of `W` integers of `s` starting at `i` (as [`chunk`]).
+#[inline(always)]
+pub fn chunk_i32<const W: usize>(s: &[i32], i: usize) -> [i32; W] {
+    debug_assert!(i + W <= s.len());
+    assert!(s.len() >= W, "a chunk is W samples");
+    let i = i.min(s.len() - W);
+    // SAFETY: `i + W <= s.len()`, and `[i32; W]` has the alignment of `i32`.
+    unsafe { *s.as_ptr().add(i).cast::<[i32; W]>() }
+}
+
 /// The chunk of `s` starting at `i`, to write (as [`chunk`]).
 #[inline(always)]
 pub fn chunk_mut<const W: usize>(s: &mut [f32], i: usize) -> &mut [f32; W] {

@@ -8,10 +8,10 @@
 
 use rayon::prelude::*;
 
-use super::column_sums::ColumnBox;
+use super::column_sums::{ColumnBox, Quantiser};
 use super::kernels::{
-    CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_mut,
-    chunk_start, colour_distance_pair_rgb, cut, exp2_weight, exp2_weight_lanes, feature_square_sum,
+    CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_i32,
+    chunk_mut, chunk_start, colour_distance_pair_rgb, cut, exp2_weight, exp2_weight_lanes, feature_square_sum,
     feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any, lanes2,
     log2_distance_scale, rows_sum,
 };
@@ -137,7 +137,7 @@ impl ScratchShape {
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
         let mid_w = bw + 2 * f;
         let lanes = 2 * GROUP_MAX as u64;
-        // Per job and lane: both boxes (rows, suffixes and prefix, see
+        // Per job and lane: both boxes (rows, running sums, see
         // [`ColumnBox`]) and the mean-weight row, each with up to 15 samples
         // of alignment.
         let cap = (2 * f + 1) as usize;
@@ -213,22 +213,21 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma", CHUNK_AVX512, true, false);
 /// 1. per row of `d_rect`: the per-pixel distance (summed over channels) and
 ///    its horizontal window sums into the box `h1` (columns of `w_rect`);
 /// 2. per row of `w_rect`, as soon as its window of `h1` rows is complete: the
-///    vertical sum (one or two rows added inside the weight's loop), scaled
-///    by `-log2(e) / (channels count)` (`t`, then `2^min(t, t_f)`), then its
+///    vertical sum (the box's exact integer running sum), scaled by its step
+///    and `-log2(e) / (channels count)` (`t`, then `2^min(t, t_f)`), then its
 ///    horizontal window sums into the box `h2` (columns of `acc_rect`);
 /// 3. per row of `acc_rect`, as soon as its window of `h2` rows is complete:
-///    the vertical sum times `(2f + 1)^2 / count` (exactly 1, so skipped,
-///    away from the borders), and one fused pass accumulating every lane
+///    the vertical sum (in units of the box's step) times `(2f + 1)^2 / count`
+///    (exactly 1, so skipped, away from the borders), and one fused pass accumulating every lane
 ///    into the numerators and the denominator.
 ///
 /// Every window sum is one fixed expression of the window's samples, over
 /// the window clipped to the offset's valid rectangle (a function of the
 /// frame). Horizontally, a whole window adds the pair sums of samples
 /// `(a, a + 1), (a + 2, a + 3), ...` then its last sample ([`pair_taps_sum`],
-/// the pair sums stored in a row). Vertically, a whole window is the
-/// suffix and prefix sums of the blocks of `2f + 1` frame rows it spans
-/// ([`ColumnBox`]). A clipped window adds its samples in increasing
-/// coordinate. The same operations for a pixel whichever block, tile or
+/// the pair sums stored in a row); a clipped one adds its samples in
+/// increasing coordinate. Vertically, the rows are quantised to integers
+/// and summed exactly ([`ColumnBox`]). The same operations for a pixel whichever block, tile or
 /// lane computes it.
 #[inline(always)]
 fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
@@ -253,9 +252,14 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
     let cap = 2 * s.patch_radius + 1;
     // Every job's forward and mirror lanes (see [`lane_buf`]).
     let mut lanes: Vec<LaneBuffers> = (0..jobs.len() * 2 * GROUP_MAX)
-        .map(|_| LaneBuffers {
-            h1: ColumnBox::new(mid.width(), cap),
-            h2: ColumnBox::new(block.width(), cap),
+        .map(|i| LaneBuffers {
+            h1: ColumnBox::new(
+                mid.width(),
+                cap,
+                Quantiser::distances(cap, jobs[i / (2 * GROUP_MAX)].values.len(), s.alpha, k2),
+                false,
+            ),
+            h2: ColumnBox::new(block.width(), cap, Quantiser::weights(cap), true),
             mean_w: Aligned::zeroed(block.width()),
         })
         .collect();
@@ -264,7 +268,6 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
     let mut scratch = Scratch {
         drow: Aligned::zeroed(pair_w),
         mrow: Aligned::zeroed(pair_w),
-        wrow: Aligned::zeroed(mid.width()),
         weights: Aligned::zeroed(mid.width()),
         pairs: Aligned::zeroed(pair_w),
         tf: if features.is_empty() {
@@ -370,8 +373,7 @@ struct Scratch {
     drow: Aligned,
     /// A pair's mirror distance row (discarded for a lane computed alone).
     mrow: Aligned,
-    /// A lane's patch distances (window sums) of a row, and its weights.
-    wrow: Aligned,
+    /// A lane's weights of a row.
     weights: Aligned,
     /// Pair sums of a row (see [`pair_taps_sum`]).
     pairs: Aligned,
@@ -471,7 +473,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
         Some(p) => p[0].u.y0..p[0].u.y1,
         None => sides[0].d_y.0..sides[0].d_y.1,
     };
-    let Scratch { drow, mrow, wrow, weights, pairs: psum, tf, square_sums } = scratch;
+    let Scratch { drow, mrow, weights, pairs: psum, tf, square_sums } = scratch;
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
@@ -534,22 +536,22 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                     for (g, lane) in side.lanes.iter().enumerate() {
                         let buf = &mut bufs[lane_buf(j, si, g)];
                         let ww = lane.w.width();
-                        let (wr, wt) = (&mut wrow[..ww], &mut weights[..ww]);
-                        // The window sums as one or two rows, added in the weight's loop.
-                        let (ny, head, tail) = buf.h1.window::<W>(side.d_y.0, yl, lane.valid, f, wr);
-                        // The patch mean's scale (with `kd`) applied inside the weight's loop.
-                        let at = (lane.w.x0, lane.valid, f, ny, kd);
+                        let wt = &mut weights[..ww];
+                        let step_h1 = buf.h1.quantiser().step();
+                        let (ny, sums) = buf.h1.window(side.d_y.0, yl, lane.valid, f, ww);
+                        // The patch mean's scale (with `kd` and the box's step)
+                        // applied inside the weight's loop.
+                        let at = (lane.w.x0, lane.valid, f, ny, kd * step_h1);
                         let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
-                        match (features.is_empty(), tail) {
-                            (true, None) => weight_row::<W, false, false>([head, &[]], wt, guide, at),
-                            (true, Some(t)) => weight_row::<W, false, true>([head, t], wt, guide, at),
-                            (false, None) => weight_row::<W, true, false>([head, &[]], wt, guide, at),
-                            (false, Some(t)) => weight_row::<W, true, true>([head, t], wt, guide, at),
+                        if features.is_empty() {
+                            weight_row::<W, false>(sums, wt, guide, at);
+                        } else {
+                            weight_row::<W, true>(sums, wt, guide, at);
                         }
                         let aw = lane.acc.width();
                         let h2 = buf.h2.row_mut(yl, side.w_y.0, aw);
                         window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
-                        buf.h2.pushed::<W>(yl, side.w_y.0, aw);
+                        buf.h2.pushed(yl, side.w_y.0, aw);
                     }
                 }
             }
@@ -564,16 +566,15 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                             continue;
                         }
                         // Where every lane's window is whole (no column of the row
-                        // clipped), the mean weights are the window's one or two
-                        // rows, added inside the accumulation; else each lane's
-                        // are formed and scaled in `mean_w`. The same sums.
-                        let direct = job.values.len() == 3
-                            && side.lanes.iter().all(|l| {
-                                l.acc.x0 >= l.valid.x0 + f
-                                    && l.acc.x1 <= l.valid.x1 - f
-                                    && yl - f >= l.valid.y0
-                                    && yl + f < l.valid.y1
-                            });
+                        // clipped), the mean weights are the box's row of sums,
+                        // read by the accumulation; else each lane's are formed
+                        // and scaled in `mean_w`. The same sums.
+                        let direct = side.lanes.iter().all(|l| {
+                            l.acc.x0 >= l.valid.x0 + f
+                                && l.acc.x1 <= l.valid.x1 - f
+                                && yl - f >= l.valid.y0
+                                && yl + f < l.valid.y1
+                        });
                         if !direct {
                             for (g, lane) in side.lanes.iter().enumerate() {
                                 let buf = &mut bufs[lane_buf(j, si, g)];
@@ -582,20 +583,20 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                                 // and denominator share the factor, and it is exactly 1
                                 // where the window is not clipped (no multiply there).
                                 let mw = &mut buf.mean_w[..aw];
-                                let ny = buf.h2.sums::<W>(side.w_y.0, yl, lane.valid, f, mw);
+                                let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
                                 scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                             }
                         }
-                        let mut rows = [LaneRow { w: &[], t: &[], x0: 0, dx: 0 }; GROUP_MAX];
+                        let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
                         for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
                             let buf = &bufs[lane_buf(j, si, g)];
                             let aw = lane.acc.width();
-                            let (w, t) = if direct {
+                            let w = if direct {
                                 buf.h2.whole(side.w_y.0, yl, lane.valid, f, aw).expect("a whole window")
                             } else {
-                                (&buf.mean_w[..aw], None)
+                                &buf.mean_w[..aw]
                             };
-                            *row = LaneRow { w, t: t.unwrap_or(&[]), x0: lane.acc.x0, dx: lane.dx };
+                            *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
                         }
                         accumulate::<W, AVX512>(
                             &mut num[j],
@@ -681,7 +682,7 @@ fn push_h1<const W: usize, const AVX512: bool>(
 ) {
     let ww = lane.w.width();
     window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
-    buf.h1.pushed::<W>(y, y0, ww);
+    buf.h1.pushed(y, y0, ww);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -751,35 +752,37 @@ pub(super) fn stride(width: usize) -> usize {
     width.next_multiple_of(16)
 }
 
-/// A zeroed `f32` buffer whose first sample starts a 64-byte cache line (an
+/// A zeroed buffer of 4-byte samples (`f32`, or `i32` for the boxes'
+/// quantised rows) whose first sample starts a 64-byte cache line (an
 /// AVX-512 vector), so that rows [`stride`] apart each start a line.
-pub(super) struct Aligned {
-    data: Vec<f32>,
+pub(super) struct Aligned<T = f32> {
+    data: Vec<T>,
     off: usize,
     len: usize,
 }
 
-impl Aligned {
-    pub(super) fn zeroed(len: usize) -> Aligned {
-        let data = vec![0.0f32; len + 15];
+impl<T: Copy + Default> Aligned<T> {
+    pub(super) fn zeroed(len: usize) -> Aligned<T> {
+        const { assert!(size_of::<T>() == 4) };
+        let data = vec![T::default(); len + 15];
         let off = data.as_ptr().align_offset(64);
         Aligned { off: if off < 16 { off } else { 0 }, data, len }
     }
 }
 
-impl std::ops::Deref for Aligned {
-    type Target = [f32];
+impl<T> std::ops::Deref for Aligned<T> {
+    type Target = [T];
     // Always inlined: an out-of-line call from a tier wrapper costs a
     // `vzeroupper` and the call itself, per row.
     #[inline(always)]
-    fn deref(&self) -> &[f32] {
+    fn deref(&self) -> &[T] {
         &self.data[self.off..self.off + self.len]
     }
 }
 
-impl std::ops::DerefMut for Aligned {
+impl<T> std::ops::DerefMut for Aligned<T> {
     #[inline(always)]
-    fn deref_mut(&mut self) -> &mut [f32] {
+    fn deref_mut(&mut self) -> &mut [T] {
         &mut self.data[self.off..self.off + self.len]
     }
 }
@@ -791,13 +794,10 @@ struct LaneBuffers {
     mean_w: Aligned,
 }
 
-/// One lane's row of mean weights, for columns from `x0`: `w`, or `w + t`
-/// when `t` is not empty (a whole window's two rows, see
-/// [`ColumnBox::window`], added where they are used).
+/// One lane's row of mean weights `w`, for columns from `x0`.
 #[derive(Clone, Copy)]
 struct LaneRow<'a> {
     w: &'a [f32],
-    t: &'a [f32],
     x0: i64,
     dx: i64,
 }
@@ -892,21 +892,19 @@ fn pair_taps_sum<const W: usize, const F: usize, const T: usize>(src: &[f32], pa
 }
 
 /// The weights of a row (columns from `x0`): `dst[i] = 2^t` with
-/// `t = src[i] * k / (nx * ny)`, where `src = head (+ tail with SPLIT)`
-/// are the window sums (see [`ColumnBox::window`]), turned into the weight's
-/// argument by the patch mean's scale (as [`scale_by_count`]) in the same
-/// pass; with `GUIDED`, `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
+/// `t = sums[i] * k / (nx * ny)`, where `sums` are the window sums (see
+/// [`ColumnBox::window`]), turned into the weight's argument by the patch
+/// mean's scale (as [`scale_by_count`]) in the same pass; with `GUIDED`,
+/// `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
 #[inline(always)]
-fn weight_row<const W: usize, const GUIDED: bool, const SPLIT: bool>(
-    [head, tail]: [&[f32]; 2],
+fn weight_row<const W: usize, const GUIDED: bool>(
+    sums: &[i32],
     dst: &mut [f32],
     tf: &[f32],
     (x0, clip, f, ny, k): (i64, Rect, i64, f32, f32),
 ) {
     let n = dst.len();
-    let head = &head[..n];
-    let tail = if SPLIT { &tail[..n] } else { tail };
-    let sum = |i: usize| if SPLIT { head[i] + tail[i] } else { head[i] };
+    let sums = &sums[..n];
     let weight = |t: f32, tf: f32| exp2_weight(if GUIDED && tf < t { tf } else { t });
     let guide = |i: usize| if GUIDED { tf[i] } else { 0.0 };
     let (unclipped, clipped) = window_columns(x0, n, clip, f);
@@ -914,19 +912,13 @@ fn weight_row<const W: usize, const GUIDED: bool, const SPLIT: bool>(
     let (u0, len) = (unclipped.start, unclipped.len());
     if len < W {
         for i in unclipped {
-            dst[i] = weight(sum(i) * inner, guide(i));
+            dst[i] = weight(sums[i] as f32 * inner, guide(i));
         }
     } else {
         for c in 0..chunk_count::<W>(len) {
             let i = u0 + chunk_start::<W>(c, len);
-            let (mut s, g) = (*chunk::<W>(head, i), if GUIDED { *chunk::<W>(tf, i) } else { [0.0; W] });
-            if SPLIT {
-                let t = chunk::<W>(tail, i);
-                for j in 0..W {
-                    s[j] += t[j];
-                }
-            }
-            let t = lanes2(s, g, |s, g| {
+            let (s, g) = (chunk_i32::<W>(sums, i), if GUIDED { *chunk::<W>(tf, i) } else { [0.0; W] });
+            let t = lanes2(s.map(|v| v as f32), g, |s, g| {
                 let t = s * inner;
                 if GUIDED && g < t { g } else { t }
             });
@@ -934,7 +926,7 @@ fn weight_row<const W: usize, const GUIDED: bool, const SPLIT: bool>(
         }
     }
     for (i, nx) in clipped {
-        dst[i] = weight(sum(i) * (k / (nx * ny)), guide(i));
+        dst[i] = weight(sums[i] as f32 * (k / (nx * ny)), guide(i));
     }
 }
 
@@ -984,7 +976,7 @@ fn accumulate<const W: usize, const AVX512: bool>(
         let i = row_off + (x - block.x0) as usize;
         for l in rows.iter().filter(|l| l.x0 <= x && x < end(l)) {
             let k = (x - l.x0) as usize;
-            let w = if l.t.is_empty() { l.w[k] } else { l.w[k] + l.t[k] };
+            let w = l.w[k];
             den[i] += w;
             for (c, n) in num.iter_mut().enumerate() {
                 n[i] = w.mul_add(values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0], n[i]);
@@ -996,32 +988,22 @@ fn accumulate<const W: usize, const AVX512: bool>(
         // One arm per group size: GROUP_MAX must stay 7 for this match.
         const _: () = assert!(GROUP_MAX == 7);
         let at = ((y, dy), c0, c1, span);
-        // Every lane's row is split alike (the same window rows), and only
-        // with three channels.
-        match (rows.len(), rows[0].t.is_empty()) {
-            (1, true) => accumulate_span::<W, 1, false, AVX512>(num, den, values, rows, at),
-            (2, true) => accumulate_span::<W, 2, false, AVX512>(num, den, values, rows, at),
-            (3, true) => accumulate_span::<W, 3, false, AVX512>(num, den, values, rows, at),
-            (4, true) => accumulate_span::<W, 4, false, AVX512>(num, den, values, rows, at),
-            (5, true) => accumulate_span::<W, 5, false, AVX512>(num, den, values, rows, at),
-            (6, true) => accumulate_span::<W, 6, false, AVX512>(num, den, values, rows, at),
-            (_, true) => accumulate_span::<W, GROUP_MAX, false, AVX512>(num, den, values, rows, at),
-            (1, false) => accumulate_span::<W, 1, true, AVX512>(num, den, values, rows, at),
-            (2, false) => accumulate_span::<W, 2, true, AVX512>(num, den, values, rows, at),
-            (3, false) => accumulate_span::<W, 3, true, AVX512>(num, den, values, rows, at),
-            (4, false) => accumulate_span::<W, 4, true, AVX512>(num, den, values, rows, at),
-            (5, false) => accumulate_span::<W, 5, true, AVX512>(num, den, values, rows, at),
-            (6, false) => accumulate_span::<W, 6, true, AVX512>(num, den, values, rows, at),
-            (_, false) => accumulate_span::<W, GROUP_MAX, true, AVX512>(num, den, values, rows, at),
+        match rows.len() {
+            1 => accumulate_span::<W, 1, AVX512>(num, den, values, rows, at),
+            2 => accumulate_span::<W, 2, AVX512>(num, den, values, rows, at),
+            3 => accumulate_span::<W, 3, AVX512>(num, den, values, rows, at),
+            4 => accumulate_span::<W, 4, AVX512>(num, den, values, rows, at),
+            5 => accumulate_span::<W, 5, AVX512>(num, den, values, rows, at),
+            6 => accumulate_span::<W, 6, AVX512>(num, den, values, rows, at),
+            _ => accumulate_span::<W, GROUP_MAX, AVX512>(num, den, values, rows, at),
         }
     }
 }
 
-/// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover
-/// (with `SPLIT`, each lane's weights are `w + t`: three channels only).
+/// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover.
 #[inline(always)]
 #[allow(clippy::type_complexity)]
-fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool, const AVX512: bool>(
+fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
@@ -1029,13 +1011,10 @@ fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool, const AVX5
     ((y, dy), c0, c1, span): ((i64, i64), i64, i64, std::ops::Range<usize>),
 ) {
     let n = (c1 - c0) as usize;
-    let (mut w, mut t): ([&[f32]; G], [&[f32]; G]) = ([&[]; G], [&[]; G]);
+    let mut w: [&[f32]; G] = [&[]; G];
     for g in 0..G {
         let (row, from) = (&rows[g], (c0 - rows[g].x0) as usize);
         w[g] = &row.w[from..][..n];
-        if SPLIT {
-            t[g] = &row.t[from..][..n];
-        }
     }
     let q = |c: usize| lane_values::<G>(values[c], rows, y + dy, c0, c1);
     let d = &mut den[span.clone()];
@@ -1054,9 +1033,9 @@ fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool, const AVX5
         // runs only on CPUs with avx512f and fma.
         unsafe {
             if rev {
-                fused_rgb_shifted_avx512::<G, SPLIT, true>([d, n0, n1, n2], [w, t], rows3);
+                fused_rgb_shifted_avx512::<G, true>([d, n0, n1, n2], w, rows3);
             } else {
-                fused_rgb_shifted_avx512::<G, SPLIT, false>([d, n0, n1, n2], [w, t], rows3);
+                fused_rgb_shifted_avx512::<G, false>([d, n0, n1, n2], w, rows3);
             }
         }
         return;
@@ -1064,9 +1043,8 @@ fn accumulate_span<const W: usize, const G: usize, const SPLIT: bool, const AVX5
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
         let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
-        fused_rgb::<W, G, SPLIT>([d, n0, n1, n2], [w, t], [q(0), q(1), q(2)]);
+        fused_rgb::<W, G>([d, n0, n1, n2], w, [q(0), q(1), q(2)]);
     } else {
-        assert!(!SPLIT, "split weights with three channels only");
         for i in 0..n {
             let mut dd = d[i];
             for wg in &w {
@@ -1116,9 +1094,9 @@ fn consecutive_dx(rows: &[LaneRow<'_>]) -> Option<(i64, bool)> {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::needless_range_loop)]
-unsafe fn fused_rgb_shifted_avx512<const G: usize, const SPLIT: bool, const REV: bool>(
+unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
-    [w, t]: [[&[f32]; G]; 2],
+    w: [&[f32]; G],
     rows: [&[f32]; 3],
 ) {
     use std::arch::x86_64::*;
@@ -1128,7 +1106,6 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const SPLIT: bool, const REV:
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
     let rows = cut(rows, len);
     let w = cut(w, n);
-    let t = if SPLIT { cut(t, n) } else { t };
     let off = |g: usize| if REV { G - 1 - g } else { g };
     // Lane `j` of `sh!(k, a, b)` is `a[j + k]`, or `b[j + k - 16]`.
     macro_rules! sh {
@@ -1159,10 +1136,7 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const SPLIT: bool, const REV:
             let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
             let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
             for g in 0..G {
-                let mut wg = _mm512_loadu_ps(w[g].as_ptr().add(i));
-                if SPLIT {
-                    wg = _mm512_add_ps(wg, _mm512_loadu_ps(t[g].as_ptr().add(i)));
-                }
+                let wg = _mm512_loadu_ps(w[g].as_ptr().add(i));
                 let o = off(g);
                 dd = _mm512_add_ps(dd, wg);
                 a0 = _mm512_fmadd_ps(wg, v[0][o], a0);
@@ -1178,7 +1152,7 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const SPLIT: bool, const REV:
     for i in n / 16 * 16..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = if SPLIT { w[g][i] + t[g][i] } else { w[g][i] };
+            let wg = w[g][i];
             let o = off(g);
             dd += wg;
             a0 = wg.mul_add(rows[0][i + o], a0);
@@ -1202,15 +1176,14 @@ fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i6
 /// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
 /// (separate `&mut` arguments: the compiler knows they do not alias).
 #[inline(always)]
-fn fused_rgb<const W: usize, const G: usize, const SPLIT: bool>(
+fn fused_rgb<const W: usize, const G: usize>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
-    [w, t]: [[&[f32]; G]; 2],
+    w: [&[f32]; G],
     [q0, q1, q2]: [[&[f32]; G]; 3],
 ) {
     let n = d.len();
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
     let (w, q0, q1, q2) = (cut(w, n), cut(q0, n), cut(q1, n), cut(q2, n));
-    let t = if SPLIT { cut(t, n) } else { t };
     // Whole chunks (an update in place: no overlapping last chunk), then
     // the remaining samples one by one with the same operations.
     let whole = n / W * W;
@@ -1219,14 +1192,8 @@ fn fused_rgb<const W: usize, const G: usize, const SPLIT: bool>(
         let (mut dd, mut a0, mut a1, mut a2) =
             (*chunk::<W>(d, i), *chunk::<W>(n0, i), *chunk::<W>(n1, i), *chunk::<W>(n2, i));
         for g in 0..G {
-            let (mut wg, x0, x1, x2) =
-                (*chunk::<W>(w[g], i), chunk::<W>(q0[g], i), chunk::<W>(q1[g], i), chunk::<W>(q2[g], i));
-            if SPLIT {
-                let tg = chunk::<W>(t[g], i);
-                for k in 0..W {
-                    wg[k] += tg[k];
-                }
-            }
+            let (wg, x0, x1, x2) =
+                (chunk::<W>(w[g], i), chunk::<W>(q0[g], i), chunk::<W>(q1[g], i), chunk::<W>(q2[g], i));
             for k in 0..W {
                 dd[k] += wg[k];
                 a0[k] = wg[k].mul_add(x0[k], a0[k]);
@@ -1240,7 +1207,7 @@ fn fused_rgb<const W: usize, const G: usize, const SPLIT: bool>(
     for i in whole..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = if SPLIT { w[g][i] + t[g][i] } else { w[g][i] };
+            let wg = w[g][i];
             dd += wg;
             a0 = wg.mul_add(q0[g][i], a0);
             a1 = wg.mul_add(q1[g][i], a1);
