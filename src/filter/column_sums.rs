@@ -15,7 +15,8 @@
 //! mean's factor (one multiply); the weights' box also keeps `f32(R)`, the
 //! mean weights in units of `2^-s` for the accumulation (numerators and
 //! denominator share the unit, which cancels exactly in their ratio: a power
-//! of two). Either is a function of the window's quantised rows alone: the
+//! of two; with `filter::repair`'s bound of 1e18 on values, a numerator
+//! stays below `441 * 49 * 2^25 * 1e18 < 1e30` at `r = 10`, `f = 3`). Either is a function of the window's quantised rows alone: the
 //! same bits in every block, tile, lane and tier, as SPEC §6 requires
 //! ("anchor the running sums to frame coordinates": exact sums need no
 //! anchor).
@@ -47,8 +48,9 @@ pub(super) struct Quantiser {
 }
 
 impl Quantiser {
-    /// The quantiser whose clamp is at least `h_max`, with the largest step
-    /// `2^s` that keeps `T` rows' sums below `2^31` (`T = cap`).
+    /// The quantiser whose clamp is `h_max` (or one `f32` step below it),
+    /// with the smallest step `2^-s` that keeps the sum of `T = cap` rows at
+    /// the clamp below `2^31`.
     fn for_range(h_max: f64, cap: usize) -> Quantiser {
         // A guard for degenerate parameters (`k = 0`): the step stays a
         // normal power of two.
@@ -98,8 +100,6 @@ impl Quantiser {
     /// `round(clamp(h * 2^s, -H 2^s, H 2^s))`, NaN to `-H 2^s`.
     #[inline(always)]
     fn quantise(&self, h: f32) -> i32 {
-        // `max` returns its non-NaN operand; then the value is finite and
-        // within `i32`: the cast is exact.
         // Two selects that compile to one `max` and one `min` (a NaN fails
         // the first comparison and lands on `-H 2^s`).
         let x = h * self.scale;

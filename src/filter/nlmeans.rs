@@ -217,9 +217,10 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma", CHUNK_AVX512, true, false);
 ///    and `-log2(e) / (channels count)` (`t`, then `2^min(t, t_f)`), then its
 ///    horizontal window sums into the box `h2` (columns of `acc_rect`);
 /// 3. per row of `acc_rect`, as soon as its window of `h2` rows is complete:
-///    the vertical sum (in units of the box's step) times `(2f + 1)^2 / count`
-///    (exactly 1, so skipped, away from the borders), and one fused pass accumulating every lane
-///    into the numerators and the denominator.
+///    the vertical sum (in units of the box's step) times
+///    `(2f + 1)^2 / count` (exactly 1, so skipped, away from the borders),
+///    and one fused pass accumulating every lane into the numerators and the
+///    denominator.
 ///
 /// Every window sum is one fixed expression of the window's samples, over
 /// the window clipped to the offset's valid rectangle (a function of the
@@ -227,8 +228,8 @@ tier_wrapper!(filter_block_avx512, "avx512f,fma", CHUNK_AVX512, true, false);
 /// `(a, a + 1), (a + 2, a + 3), ...` then its last sample ([`pair_taps_sum`],
 /// the pair sums stored in a row); a clipped one adds its samples in
 /// increasing coordinate. Vertically, the rows are quantised to integers
-/// and summed exactly ([`ColumnBox`]). The same operations for a pixel whichever block, tile or
-/// lane computes it.
+/// and summed exactly ([`ColumnBox`]). The same operations for a pixel
+/// whichever block, tile or lane computes it.
 #[inline(always)]
 fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
     jobs: &[Job<'_>],
