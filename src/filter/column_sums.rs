@@ -122,8 +122,6 @@ pub(super) struct ColumnBox {
     ring: Aligned<i32>,
     /// The sum of the last `T` rows pushed (or of all rows, while fewer).
     run: Aligned<i32>,
-    /// The row the producer writes, quantised when pushed.
-    stage: Aligned,
     /// With `float_sums`, `run` as `f32` (in units of `2^-s`), once it
     /// holds `T` rows: the last whole window's sums, for the accumulation.
     sums: Aligned,
@@ -147,7 +145,6 @@ impl ColumnBox {
         ColumnBox {
             ring: Aligned::zeroed(st * cap),
             run: Aligned::zeroed(st),
-            stage: Aligned::zeroed(st),
             sums: Aligned::zeroed(if float_sums { st } else { 0 }),
             float_sums,
             clip_sums: Aligned::zeroed(st),
@@ -163,30 +160,24 @@ impl ColumnBox {
         self.q
     }
 
-    /// Samples (4 bytes each) held: the ring, the running sums, the staged
-    /// row, the window sums and a clipped window's sums.
+    /// Samples (4 bytes each) held: the ring, the running sums, the window
+    /// sums and a clipped window's sums.
     pub(super) fn samples(width: usize, cap: usize) -> u64 {
-        (stride(width) * (cap + 4)) as u64
+        (stride(width) * (cap + 3)) as u64
     }
 
-    /// The row to write frame row `y` into, `w` samples; then call
-    /// [`ColumnBox::pushed`].
+    /// Push frame row `y` (`h`, `w = h.len()` samples; `y0`: the step's
+    /// first row of this box, rows pushed in order from it): quantise it
+    /// into the ring and update the running sums (and, once they cover `T`
+    /// rows, their `f32` values), in one pass.
     #[inline(always)]
-    pub(super) fn row_mut(&mut self, _y: i64, _y0: i64, w: usize) -> &mut [f32] {
-        &mut self.stage[..w]
-    }
-
-    /// Row `y` (`w` samples; `y0`: the step's first row of this box, rows
-    /// pushed in order from it) was written: quantise it into the ring and
-    /// update the running sums (and, once they cover `T` rows, their `f32`
-    /// values), in one pass.
-    #[inline(always)]
-    pub(super) fn pushed(&mut self, y: i64, y0: i64, w: usize) {
+    pub(super) fn pushed(&mut self, y: i64, y0: i64, h: &[f32]) {
+        let w = h.len();
         debug_assert!(y == y0 || y == self.last_row + 1, "row {y} pushed after {}", self.last_row);
         let k = (y - y0) as usize;
         let at = k % self.cap * self.stride;
         let q = self.q;
-        let (ring, run, stage) = (&mut self.ring[at..at + w], &mut self.run[..w], &self.stage[..w]);
+        let (ring, run, stage) = (&mut self.ring[at..at + w], &mut self.run[..w], h);
         if k == 0 {
             for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
                 let v = q.quantise(*h);
@@ -305,10 +296,8 @@ mod tests {
         // Rows whose window lies in the rows pushed (or is clipped at the top).
         let mut next = if y0 == clip.y0 { y0 } else { y0 + f };
         for y in y0..y1 {
-            for (i, v) in b.row_mut(y, y0, w).iter_mut().enumerate() {
-                *v = value(y, i);
-            }
-            b.pushed(y, y0, w);
+            let row: Vec<f32> = (0..w).map(|i| value(y, i)).collect();
+            b.pushed(y, y0, &row);
             while next < y1 && (next + f).min(clip.y1 - 1) <= y {
                 let mut floats = vec![0.0; w];
                 b.sums(y0, next, clip, f, &mut floats);

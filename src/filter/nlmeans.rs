@@ -271,6 +271,7 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
         mrow: Aligned::zeroed(pair_w),
         weights: Aligned::zeroed(mid.width()),
         pairs: Aligned::zeroed(pair_w),
+        hrow: Aligned::zeroed(mid.width()),
         tf: if features.is_empty() {
             Vec::new()
         } else {
@@ -378,6 +379,9 @@ struct Scratch {
     weights: Aligned,
     /// Pair sums of a row (see [`pair_taps_sum`]).
     pairs: Aligned,
+    /// A lane's horizontal window sums of a row, before its box quantises
+    /// them: one row for every box, so that it stays in L1.
+    hrow: Aligned,
     /// The guides' weight argument of each lane's current weight row
     /// (lane `g` of side `s` in row `s * GROUP_MAX + g`); empty without guides.
     tf: Vec<Aligned>,
@@ -474,7 +478,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
         Some(p) => p[0].u.y0..p[0].u.y1,
         None => sides[0].d_y.0..sides[0].d_y.1,
     };
-    let Scratch { drow, mrow, weights, pairs: psum, tf, square_sums } = scratch;
+    let Scratch { drow, mrow, weights, pairs: psum, hrow, tf, square_sums } = scratch;
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
@@ -488,7 +492,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
                         distance_rows::<W>(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
                         let buf = &mut bufs[lane_buf(j, 0, g)];
-                        push_h1::<W, AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, psum);
+                        push_h1::<W, AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, (psum, hrow));
                     }
                 }
                 Some(pairs) => {
@@ -512,7 +516,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                                 lane.d.x0,
                                 (yl, side.d_y.0),
                                 f,
-                                psum,
+                                (psum, hrow),
                             );
                         }
                     }
@@ -554,9 +558,9 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                             weight_row::<W, true>(sums, wt, guide, at);
                         }
                         let aw = lane.acc.width();
-                        let h2 = buf.h2.row_mut(yl, side.w_y.0, aw);
-                        window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h2, psum);
-                        buf.h2.pushed(yl, side.w_y.0, aw);
+                        let h = &mut hrow[..aw];
+                        window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h, psum);
+                        buf.h2.pushed(yl, side.w_y.0, h);
                     }
                 }
             }
@@ -683,11 +687,11 @@ fn push_h1<const W: usize, const AVX512: bool>(
     x0: i64,
     (y, y0): (i64, i64),
     f: i64,
-    pairs: &mut [f32],
+    (pairs, hrow): (&mut [f32], &mut [f32]),
 ) {
-    let ww = lane.w.width();
-    window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, buf.h1.row_mut(y, y0, ww), pairs);
-    buf.h1.pushed(y, y0, ww);
+    let h = &mut hrow[..lane.w.width()];
+    window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, h, pairs);
+    buf.h1.pushed(y, y0, h);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
