@@ -177,21 +177,21 @@ impl ColumnBox {
         let k = (y - y0) as usize;
         let at = k % self.cap * self.stride;
         let q = self.q;
-        let (ring, run, stage) = (&mut self.ring[at..at + w], &mut self.run[..w], h);
+        let (ring, run) = (&mut self.ring[at..at + w], &mut self.run[..w]);
         if k == 0 {
-            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
-                let v = q.quantise(*h);
+            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                let v = q.quantise(*x);
                 (*r, *s) = (v, v);
             }
         } else if k < self.cap {
-            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
-                let v = q.quantise(*h);
+            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                let v = q.quantise(*x);
                 (*r, *s) = (v, s.wrapping_add(v));
             }
         } else {
             // The slot holds row `y - T`, which leaves the window.
-            for ((r, s), h) in ring.iter_mut().zip(run.iter_mut()).zip(stage) {
-                let v = q.quantise(*h);
+            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                let v = q.quantise(*x);
                 (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
             }
         }
