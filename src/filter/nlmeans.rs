@@ -530,6 +530,12 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
             if !features.is_empty() {
                 guide_rows::<W, AVX512, AVX2>(features, &sides, pairs, y, tf, square_sums);
             }
+            // The rows whose mean weights become complete with row `y`.
+            let first_a = next_a;
+            while next_a < a_rows.1 && (next_a + f).min(valid_y1 - 1) <= y {
+                next_a += 1;
+            }
+            let ready = first_a..next_a;
             // The lanes in the reverse of pass 1's order: the boxes pushed
             // last are the likeliest still in L1 (each lane's pass is
             // independent of the others', so the order changes no bit;
@@ -563,12 +569,10 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         buf.h2.pushed(yl, side.w_y.0, h);
                     }
                 }
-            }
-            // 3. Mean weights of every lane of a side, accumulated in one pass.
-            while next_a < a_rows.1 && (next_a + f).min(valid_y1 - 1) <= y {
-                let ya = next_a;
-                next_a += 1;
-                for (j, job) in jobs.iter().enumerate() {
+                // 3. Mean weights of every lane of a side, accumulated in one
+                // pass, right after the job's pass 2 (its boxes' sums still
+                // in cache; jobs have their own numerators, so no bit changes).
+                for ya in ready.clone() {
                     for (si, side) in sides.iter().enumerate() {
                         let yl = ya + side.shift;
                         if !in_rows(side.a_y, yl) {
