@@ -210,7 +210,7 @@ impl ColumnBox {
     #[inline(always)]
     pub(super) fn sums(&mut self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
         let w = out.len();
-        match self.whole(y0, y, clip, f, w) {
+        match self.whole(y, clip, f, w) {
             Ok(sums) => out.copy_from_slice(sums),
             Err(count) => {
                 for (o, s) in out.iter_mut().zip(self.clipped(y0, y, clip, f, count, w)) {
@@ -244,7 +244,7 @@ impl ColumnBox {
     /// A whole window's `f32` sums (`w` samples, a box with `float_sums`),
     /// or the height of a clipped one.
     #[inline(always)]
-    pub(super) fn whole(&self, _y0: i64, y: i64, clip: Rect, f: i64, w: usize) -> Result<&[f32], usize> {
+    pub(super) fn whole(&self, y: i64, clip: Rect, f: i64, w: usize) -> Result<&[f32], usize> {
         let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
         let count = (b - a + 1) as usize;
         if count != self.cap {

@@ -282,21 +282,23 @@ pub fn chunk_start<const W: usize>(c: usize, n: usize) -> usize {
 /// chunk of a row.
 #[inline(always)]
 pub fn chunk<const W: usize>(s: &[f32], i: usize) -> &[f32; W] {
+    chunk_of(s, i)
+}
+
+/// [`chunk`] for any sample type.
+#[inline(always)]
+fn chunk_of<T, const W: usize>(s: &[T], i: usize) -> &[T; W] {
     debug_assert!(i + W <= s.len());
     assert!(s.len() >= W, "a chunk is W samples");
     let i = i.min(s.len() - W);
-    // SAFETY: `i + W <= s.len()`, and `[f32; W]` has the alignment of `f32`.
-    unsafe { &*s.as_ptr().add(i).cast::<[f32; W]>() }
+    // SAFETY: `i + W <= s.len()`, and `[T; W]` has the alignment of `T`.
+    unsafe { &*s.as_ptr().add(i).cast::<[T; W]>() }
 }
 
 /// A copy of the chunk of `W` integers of `s` starting at `i` (as [`chunk`]).
 #[inline(always)]
 pub fn chunk_i32<const W: usize>(s: &[i32], i: usize) -> [i32; W] {
-    debug_assert!(i + W <= s.len());
-    assert!(s.len() >= W, "a chunk is W samples");
-    let i = i.min(s.len() - W);
-    // SAFETY: `i + W <= s.len()`, and `[i32; W]` has the alignment of `i32`.
-    unsafe { *s.as_ptr().add(i).cast::<[i32; W]>() }
+    *chunk_of(s, i)
 }
 
 /// The chunk of `s` starting at `i`, to write (as [`chunk`]).

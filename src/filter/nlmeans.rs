@@ -541,8 +541,10 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
             // independent of the others', so the order changes no bit;
             // 0.96-0.97x in interleaved pairs, docs/performance.md session 23).
             for (j, job) in jobs.iter().enumerate().rev() {
-                // Channel mean and `-log2(e)`, folded into the patch mean's scale.
-                let kd = log2_distance_scale(job.values.len());
+                // Channel mean, `-log2(e)` and the distances' quantisation step
+                // (the same for every lane of a job), folded into the patch
+                // mean's scale.
+                let kd = log2_distance_scale(job.values.len()) * bufs[lane_buf(j, 0, 0)].h1.quantiser().step();
                 for (si, side) in sides.iter().enumerate().rev() {
                     let yl = y + side.shift;
                     if !in_rows(side.w_y, yl) {
@@ -552,11 +554,10 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let buf = &mut bufs[lane_buf(j, si, g)];
                         let ww = lane.w.width();
                         let wt = &mut weights[..ww];
-                        let step_h1 = buf.h1.quantiser().step();
                         let (ny, sums) = buf.h1.window(side.d_y.0, yl, lane.valid, f, ww);
-                        // The patch mean's scale (with `kd` and the box's step)
-                        // applied inside the weight's loop.
-                        let at = (lane.w.x0, lane.valid, f, ny, kd * step_h1);
+                        // The patch mean's scale (with `kd`) applied inside the
+                        // weight's loop.
+                        let at = (lane.w.x0, lane.valid, f, ny, kd);
                         let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
                         if features.is_empty() {
                             weight_row::<W, false>(sums, wt, guide, at);
@@ -605,7 +606,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                             let buf = &bufs[lane_buf(j, si, g)];
                             let aw = lane.acc.width();
                             let w = if direct {
-                                buf.h2.whole(side.w_y.0, yl, lane.valid, f, aw).expect("a whole window")
+                                buf.h2.whole(yl, lane.valid, f, aw).expect("a whole window")
                             } else {
                                 &buf.mean_w[..aw]
                             };
