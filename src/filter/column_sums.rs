@@ -5,7 +5,11 @@
 //! distances or weights, `f32`) one after the other. Each row is first
 //! *quantised*: `q = round(clamp(h, -H, H) * 2^s)` as a 32-bit integer,
 //! with `H` and `s` fixed by the box's [`Quantiser`] (a function of the
-//! filter's parameters, never of a tile or a block). Integer sums are exact
+//! filter's parameters, never of a tile or a block). The rows arrive
+//! already scaled by `2^s` (their producers fold the power of two into
+//! their own constants, an exact scaling: see [`Quantiser::scale`]), so
+//! the box only clamps (distances; the weights' rows cannot leave the
+//! range) and rounds. Integer sums are exact
 //! whatever their order, so the vertical window sums are kept as a running
 //! sum `R(y) = R(y - 1) + q(y) - q(y - 2f - 1)`: two integer operations per
 //! sample, one pass per row, whichever row a block or tile starts at. A
@@ -35,7 +39,9 @@ use super::nlmeans::{Aligned, stride};
 use crate::geom::Rect;
 
 /// How a box turns its `f32` rows into integers: `q = round(clamp(h, -H, H) * scale)`
-/// with `scale = 2^s`, and back: `f32(sum) * inv` with `inv = 2^-s`.
+/// with `scale = 2^s`, and back: `f32(sum) * inv` with `inv = 2^-s`. The
+/// producer of the rows applies `scale` (see [`Quantiser::scale`]); the
+/// box clamps and rounds.
 ///
 /// `H` and `s` satisfy `T * H * 2^s < 2^31` (`T = 2f + 1` rows per window),
 /// so no window sum can overflow.
@@ -45,6 +51,8 @@ pub(super) struct Quantiser {
     limit: f32,
     scale: f32,
     inv: f32,
+    /// `s`.
+    exponent: i32,
 }
 
 impl Quantiser {
@@ -61,7 +69,7 @@ impl Quantiser {
         let limit = (h * scale) as f32;
         let limit =
             if (limit as f64) * cap as f64 >= 2f64.powi(31) { f32::from_bits(limit.to_bits() - 1) } else { limit };
-        Quantiser { limit, scale: scale as f32, inv: (1.0 / scale) as f32 }
+        Quantiser { limit, scale: scale as f32, inv: (1.0 / scale) as f32, exponent: s }
     }
 
     /// For a box of colour distances: rows `h` are horizontal sums of up to
@@ -89,24 +97,58 @@ impl Quantiser {
     }
 
     /// For a box of weights: rows are horizontal sums of up to `T` weights
-    /// in `[0, 1]`, so at most `T`; the clamp at `T + 1` changes nothing
-    /// (it maps a NaN to `-H`). For `f = 3` the step is `2^-25`: a window's
+    /// in `[0, 1]` (`kernels::exp2_weight` is never NaN), so in `[0, T]`
+    /// (each `f32` add rounds monotonically), inside the clamp at `T + 1`:
+    /// the box pushes them with [`ColumnBox::pushed`]`::<false>`, no clamp.
+    /// For `f = 3` the step is `2^-25`: a window's
     /// sum (at most 49) is within `7 * 2^-26` of the exact sum of its
     /// weights, the patches' mean weights within 2.1e-9 each.
     pub(super) fn weights(cap: usize) -> Quantiser {
         Quantiser::for_range(cap as f64 + 1.0, cap)
     }
 
-    /// `round(clamp(h * 2^s, -H 2^s, H 2^s))`, NaN to `-H 2^s`.
+    /// `round(clamp(x, -H 2^s, H 2^s))` of a row's sample `x = h 2^s`
+    /// (already scaled), NaN to `-H 2^s`.
     #[inline(always)]
-    fn quantise(&self, h: f32) -> i32 {
+    fn quantise(&self, x: f32) -> i32 {
         // Two selects that compile to one `max` and one `min` (a NaN fails
         // the first comparison and lands on `-H 2^s`).
-        let x = h * self.scale;
         let x = if x > -self.limit { x } else { -self.limit };
         let x = (if x < self.limit { x } else { self.limit }).round_ties_even();
         // SAFETY: `x` is an integer in `[-2^31 / T, 2^31 / T]`, not NaN.
         unsafe { x.to_int_unchecked::<i32>() }
+    }
+
+    /// `round(x)` of a scaled sample known to lie inside the clamp (a
+    /// weights' row): [`Quantiser::quantise`] without its clamp, the same
+    /// value there.
+    #[inline(always)]
+    fn rounded(&self, x: f32) -> i32 {
+        debug_assert!(x > -self.limit && x < self.limit, "{x} outside the clamp {}", self.limit);
+        // SAFETY: `x` lies in `(-2^31 / T, 2^31 / T)` (the caller's bound), not NaN.
+        unsafe { x.round_ties_even().to_int_unchecked::<i32>() }
+    }
+
+    /// [`Quantiser::quantise`] with `CLAMP`, else [`Quantiser::rounded`].
+    #[inline(always)]
+    fn pushed_sample<const CLAMP: bool>(&self, x: f32) -> i32 {
+        if CLAMP { self.quantise(x) } else { self.rounded(x) }
+    }
+
+    /// `2^s`, the factor the box's rows must already carry: the producer of
+    /// a row of `h` hands the box `h * 2^s`. A product by a power of two is
+    /// exact for normal numbers, and so is each step of a sum of such
+    /// products, so a producer may fold it into its constants (the
+    /// distances' `eps` and `k^2` divided by it, the weights' exponent
+    /// raised by `s`, see [`Quantiser::exponent`]) and give the same bits
+    /// as scaling its result.
+    pub(super) fn scale(&self) -> f32 {
+        self.scale
+    }
+
+    /// `s`, for producers that scale through an exponent.
+    pub(super) fn exponent(&self) -> i32 {
+        self.exponent
     }
 
     /// `2^-s`: a sum of quantised rows is worth `sum * 2^-s`.
@@ -166,12 +208,14 @@ impl ColumnBox {
         (stride(width) * (cap + 3)) as u64
     }
 
-    /// Push frame row `y` (`h`, `w = h.len()` samples; `y0`: the step's
-    /// first row of this box, rows pushed in order from it): quantise it
-    /// into the ring and update the running sums (and, once they cover `T`
-    /// rows, their `f32` values), in one pass.
+    /// Push frame row `y` (`h`, `w = h.len()` samples already scaled by
+    /// [`Quantiser::scale`]; `y0`: the step's first row of this box, rows
+    /// pushed in order from it): quantise it into the ring and update the
+    /// running sums (and, once they cover `T` rows, their `f32` values), in
+    /// one pass. With `CLAMP` false the samples must lie inside the clamp
+    /// (a weights' box, see [`Quantiser::weights`]) and are only rounded.
     #[inline(always)]
-    pub(super) fn pushed(&mut self, y: i64, y0: i64, h: &[f32]) {
+    pub(super) fn pushed<const CLAMP: bool>(&mut self, y: i64, y0: i64, h: &[f32]) {
         let w = h.len();
         debug_assert!(y == y0 || y == self.last_row + 1, "row {y} pushed after {}", self.last_row);
         let k = (y - y0) as usize;
@@ -180,18 +224,18 @@ impl ColumnBox {
         let (ring, run) = (&mut self.ring[at..at + w], &mut self.run[..w]);
         if k == 0 {
             for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.quantise(*x);
+                let v = q.pushed_sample::<CLAMP>(*x);
                 (*r, *s) = (v, v);
             }
         } else if k < self.cap {
             for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.quantise(*x);
+                let v = q.pushed_sample::<CLAMP>(*x);
                 (*r, *s) = (v, s.wrapping_add(v));
             }
         } else {
             // The slot holds row `y - T`, which leaves the window.
             for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.quantise(*x);
+                let v = q.pushed_sample::<CLAMP>(*x);
                 (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
             }
         }
@@ -286,18 +330,27 @@ mod tests {
         (s * 0.001 + 1.0) * if (y + i as i64) % 3 == 0 { 1e3 } else { 1.1e-3 }
     }
 
-    /// Push rows `y0..y1` (row `y` = `value(y)`) and collect the integer and
-    /// `f32` window sums of every row whose window is complete, as the
-    /// kernel does.
-    fn run(q: Quantiser, w: usize, f: i64, y0: i64, y1: i64, clip: Rect) -> Vec<(i64, Vec<i32>, Vec<f32>)> {
+    /// Push rows `y0..y1` (row `y` = `value(y)`, scaled by the quantiser's
+    /// `2^s` as the kernel's producers hand them) and collect the integer
+    /// and `f32` window sums of every row whose window is complete, as the
+    /// kernel does; with `CLAMP` false, pushed unclamped (the rows must lie
+    /// inside the clamp).
+    fn run<const CLAMP: bool>(
+        q: Quantiser,
+        w: usize,
+        f: i64,
+        y0: i64,
+        y1: i64,
+        clip: Rect,
+    ) -> Vec<(i64, Vec<i32>, Vec<f32>)> {
         let cap = (2 * f + 1) as usize;
         let mut b = ColumnBox::new(w, cap, q, true);
         let mut out = Vec::new();
         // Rows whose window lies in the rows pushed (or is clipped at the top).
         let mut next = if y0 == clip.y0 { y0 } else { y0 + f };
         for y in y0..y1 {
-            let row: Vec<f32> = (0..w).map(|i| value(y, i)).collect();
-            b.pushed(y, y0, &row);
+            let row: Vec<f32> = (0..w).map(|i| value(y, i) * q.scale()).collect();
+            b.pushed::<CLAMP>(y, y0, &row);
             while next < y1 && (next + f).min(clip.y1 - 1) <= y {
                 let mut floats = vec![0.0; w];
                 b.sums(y0, next, clip, f, &mut floats);
@@ -317,10 +370,13 @@ mod tests {
             for w in [5, 16, 37, 150] {
                 let clip = Rect { x0: 0, x1: w as i64, y0: -11, y1: 40 };
                 for y0 in [-11, -9, -4, 0, 3, 6] {
-                    for (y, ints, floats) in run(q, w, f, y0, clip.y1, clip) {
+                    let rows = run::<true>(q, w, f, y0, clip.y1, clip);
+                    // The values lie inside the clamp: unclamped, the same sums.
+                    assert_eq!(rows, run::<false>(q, w, f, y0, clip.y1, clip));
+                    for (y, ints, floats) in rows {
                         let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
                         for i in 0..w {
-                            let exact: i64 = (a..=b).map(|j| i64::from(q.quantise(value(j, i)))).sum();
+                            let exact: i64 = (a..=b).map(|j| i64::from(q.quantise(value(j, i) * q.scale()))).sum();
                             assert_eq!(i64::from(ints[i]), exact, "f {f} w {w} first row {y0}: row {y} col {i}");
                             assert_eq!(floats[i].to_bits(), (exact as f32).to_bits(), "row {y} col {i}");
                         }
@@ -335,7 +391,7 @@ mod tests {
         let (f, w) = (3, 20);
         let q = Quantiser::for_range(2000.0, 7);
         let clip = Rect { x0: 0, x1: w as i64, y0: 0, y1: 30 };
-        let rows = run(q, w, f, 0, 30, clip);
+        let rows = run::<true>(q, w, f, 0, 30, clip);
         assert_eq!(rows.len(), 30);
         for (y, ints, _) in rows {
             let (a, b) = ((y - f).max(0), (y + f).min(29));
@@ -377,5 +433,19 @@ mod tests {
         let mean = (h + lowest) / (channels as f64 * t * t);
         let arg = (-mean * std::f64::consts::LOG2_E) as f32;
         assert_eq!(exp2_weight(arg), exp2_weight(-1e30), "mean {mean}");
+    }
+
+    /// A weights' row (a horizontal sum of `T` weights of at most 1,
+    /// scaled) lies inside the clamp whatever `T`, as
+    /// [`ColumnBox::pushed`]`::<false>` requires, and the scale is `2^s`.
+    #[test]
+    fn weights_rows_lie_inside_the_clamp() {
+        for cap in [1usize, 3, 5, 7, 9, 11, 21] {
+            let q = Quantiser::weights(cap);
+            assert!(cap as f32 * q.scale() < q.limit, "T = {cap}");
+            assert_eq!(q.scale(), 2f32.powi(q.exponent()));
+            assert_eq!(q.scale() * q.step(), 1.0);
+            assert!((0..=127).contains(&q.exponent()));
+        }
     }
 }

@@ -40,6 +40,19 @@ pub fn exp2_weight(t: f32) -> f32 {
 /// (docs/performance.md, session 20).
 #[inline(always)]
 pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
+    exp2_weight_scaled_lanes(t, 0)
+}
+
+/// [`exp2_weight_lanes`] times `2^e`, exactly: the power of two `2^(n + e)`
+/// instead of `2^n` in its last multiply, no extra operation. The weights'
+/// box ([`super::column_sums::Quantiser::weights`]) takes its rows already
+/// scaled by its `2^s` this way. `e` must lie in `[0, 127]`, so that
+/// `2^(n + e)` with `n` in `[-126, 0]` stays a normal number (the result
+/// is then `exp2_weight(t) * 2^e` with no rounding: a product by a power of
+/// two of a normal number that stays normal).
+#[inline(always)]
+pub fn exp2_weight_scaled_lanes<const W: usize>(t: [f32; W], e: i32) -> [f32; W] {
+    debug_assert!((0..=127).contains(&e));
     const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
     // Two selects that map to min/max instructions; NaN fails `t > -126` and
     // lands on the clamp value.
@@ -60,7 +73,7 @@ pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
         // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it
         // with an integer subtraction (a float-to-int cast would be scalarised).
         let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
-        p * f32::from_bits(((ni + 127) as u32) << 23)
+        p * f32::from_bits(((ni + 127 + e) as u32) << 23)
     })
 }
 
@@ -978,6 +991,13 @@ mod tests {
         }
         assert!(check::<CHUNK>(&ts) >= ts.len());
         assert!(check::<CHUNK_AVX512>(&ts) >= ts.len());
+        // Scaled by `2^e`: exactly the weight times `2^e`.
+        for e in [0, 1, 13, 25, 127] {
+            for t in ts.iter().step_by(97) {
+                let want = exp2_weight(*t) * 2f32.powi(e);
+                assert_eq!(exp2_weight_scaled_lanes([*t], e)[0].to_bits(), want.to_bits(), "t = {t:e}, e = {e}");
+            }
+        }
     }
 
     /// The array kernel (channel counts 1 to 4, with and without variance,

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::column_sums::{ColumnBox, Quantiser};
 use super::kernels::{
     CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_i32,
-    chunk_mut, chunk_start, colour_distance_pair_rgb, cut, exp2_weight, exp2_weight_lanes, feature_square_sum,
+    chunk_mut, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes, feature_square_sum,
     feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any, lanes2,
     log2_distance_scale, rows_sum,
 };
@@ -480,9 +480,15 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
     };
     let Scratch { drow, mrow, weights, pairs: psum, hrow, tf, square_sums } = scratch;
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
+    // The weights' box's scale, through the exponent of their `exp2`.
+    let w_exp = bufs[0].h2.quantiser().exponent();
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
         for (j, job) in jobs.iter().enumerate() {
+            // The distances scaled by their box's `2^s` through the
+            // denominator's constants (see `distance_rows`).
+            let inv = 1.0 / bufs[lane_buf(j, 0, 0)].h1.quantiser().scale();
+            let consts = (s.alpha, s.eps * inv, k2 * inv);
             match pairs {
                 None => {
                     let side = &sides[0];
@@ -490,7 +496,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let (d_rect, w) = (lane.d, lane.d.width());
                         // The pair kernel with its mirror row discarded.
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
-                        distance_rows::<W>(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, s, k2);
+                        distance_rows::<W>(job, d, m, yd, dy, (d_rect.x0, d_rect.x1), lane.dx, consts);
                         let buf = &mut bufs[lane_buf(j, 0, g)];
                         push_h1::<W, AVX512>(lane, buf, d, d_rect.x0, (yd, side.d_y.0), f, (psum, hrow));
                     }
@@ -500,7 +506,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let (u, dx) = (pair.u, pair.dx);
                         let w = u.width();
                         let (d, m) = (&mut drow[..w], &mut mrow[..w]);
-                        distance_rows::<W>(job, d, m, yd, dy, (u.x0, u.x1), dx, s, k2);
+                        distance_rows::<W>(job, d, m, yd, dy, (u.x0, u.x1), dx, consts);
                         // Row `d` holds pixels `p` from `u.x0`, row `m` pixels `p + n`.
                         for (si, row, x0, g) in [(0, &*d, u.x0, pair.fwd), (1, &*m, u.x0 + dx, pair.mir)] {
                             let side = &sides[si];
@@ -557,7 +563,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let (ny, sums) = buf.h1.window(side.d_y.0, yl, lane.valid, f, ww);
                         // The patch mean's scale (with `kd`) applied inside the
                         // weight's loop.
-                        let at = (lane.w.x0, lane.valid, f, ny, kd);
+                        let at = (lane.w.x0, lane.valid, f, ny, kd, w_exp);
                         let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
                         if features.is_empty() {
                             weight_row::<W, false>(sums, wt, guide, at);
@@ -567,7 +573,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let aw = lane.acc.width();
                         let h = &mut hrow[..aw];
                         window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h, psum);
-                        buf.h2.pushed(yl, side.w_y.0, h);
+                        buf.h2.pushed::<false>(yl, side.w_y.0, h);
                     }
                 }
                 // 3. Mean weights of every lane of a side, accumulated in one
@@ -631,7 +637,17 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
 
 /// The distances of row `y`, columns `x`, for offset `(dx, dy)` into `d` and
 /// for the mirror offset into `m` (pixel `p + (dx, dy)`), summed over the
-/// job's channels: `((0 + t_0) + t_1) + ...`.
+/// job's channels: `((0 + t_0) + t_1) + ...`, with `consts = (alpha, eps,
+/// k^2)`.
+///
+/// The kernel passes `eps 2^-s` and `k^2 2^-s` (`2^s`: the distances' box's
+/// [`Quantiser::scale`](super::column_sums::Quantiser::scale)), which gives
+/// the distances times `2^s` exactly: the denominator `eps + k^2 (vp + vq)`
+/// is scaled by `2^-s` with no rounding (its fused multiply-add rounds the
+/// scaled exact value, a normal number while `eps 2^-s` is, as SPEC's
+/// `eps = 1e-10` is), `kernels::recip` of it is its reciprocal times `2^s`
+/// exactly (each of its steps scales: the seed's exponent, then each
+/// Newton step's terms), and so is each term and sum after it.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn distance_rows<const W: usize>(
@@ -642,16 +658,15 @@ fn distance_rows<const W: usize>(
     dy: i64,
     x: (i64, i64),
     dx: i64,
-    s: &NlmSettings,
-    k2: f32,
+    (alpha, eps, k2): (f32, f32, f32),
 ) {
     if let ([u0, u1, u2], [v0, v1, v2]) = (&job.values[..], &job.variance[..]) {
         let up = [shifted(u0, y, x, 0), shifted(u1, y, x, 0), shifted(u2, y, x, 0)];
         let uq = [shifted(u0, y + dy, x, dx), shifted(u1, y + dy, x, dx), shifted(u2, y + dy, x, dx)];
         let vp = [shifted(v0, y, x, 0), shifted(v1, y, x, 0), shifted(v2, y, x, 0)];
         let vq = [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)];
-        let consts = (s.alpha, s.eps, k2);
-        if s.alpha == 1.0 {
+        let consts = (alpha, eps, k2);
+        if alpha == 1.0 {
             colour_distance_pair_rgb::<W, true>(d, m, up, uq, vp, vq, consts);
         } else {
             colour_distance_pair_rgb::<W, false>(d, m, up, uq, vp, vq, consts);
@@ -667,8 +682,8 @@ fn distance_rows<const W: usize>(
                 shifted(u, y + dy, x, dx),
                 shifted(v, y, x, 0),
                 shifted(v, y + dy, x, dx),
-                s.alpha,
-                s.eps,
+                alpha,
+                eps,
                 k2,
             );
         }
@@ -696,7 +711,7 @@ fn push_h1<const W: usize, const AVX512: bool>(
 ) {
     let h = &mut hrow[..lane.w.width()];
     window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, h, pairs);
-    buf.h1.pushed(y, y0, h);
+    buf.h1.pushed::<true>(y, y0, h);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -909,17 +924,19 @@ fn pair_taps_sum<const W: usize, const F: usize, const T: usize>(src: &[f32], pa
 /// `t = sums[i] * k / (nx * ny)`, where `sums` are the window sums (see
 /// [`ColumnBox::window`]), turned into the weight's argument by the patch
 /// mean's scale (as [`scale_by_count`]) in the same pass; with `GUIDED`,
-/// `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp.
+/// `2^min(t, tf[i])`: `min(w_c, w_f)` with one exp. Each weight comes
+/// times `2^e`, exactly (`e`: the weights' box's `s`, see
+/// [`kernels::exp2_weight_scaled_lanes`](super::kernels::exp2_weight_scaled_lanes)).
 #[inline(always)]
 fn weight_row<const W: usize, const GUIDED: bool>(
     sums: &[i32],
     dst: &mut [f32],
     tf: &[f32],
-    (x0, clip, f, ny, k): (i64, Rect, i64, f32, f32),
+    (x0, clip, f, ny, k, e): (i64, Rect, i64, f32, f32, i32),
 ) {
     let n = dst.len();
     let sums = &sums[..n];
-    let weight = |t: f32, tf: f32| exp2_weight(if GUIDED && tf < t { tf } else { t });
+    let weight = |t: f32, tf: f32| exp2_weight_scaled_lanes([if GUIDED && tf < t { tf } else { t }], e)[0];
     let guide = |i: usize| if GUIDED { tf[i] } else { 0.0 };
     let (unclipped, clipped) = window_columns(x0, n, clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
@@ -936,7 +953,7 @@ fn weight_row<const W: usize, const GUIDED: bool>(
                 let t = s * inner;
                 if GUIDED && g < t { g } else { t }
             });
-            *chunk_mut::<W>(dst, i) = exp2_weight_lanes(t);
+            *chunk_mut::<W>(dst, i) = exp2_weight_scaled_lanes(t, e);
         }
     }
     for (i, nx) in clipped {
