@@ -45,7 +45,7 @@ pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
 
 /// [`exp2_weight_lanes`] times `2^e`, exactly: the power of two `2^(n + e)`
 /// instead of `2^n` in its last multiply, no extra operation. The weights'
-/// box ([`super::column_sums::Quantiser::weights`]) takes its rows already
+/// box (`column_sums::Quantiser::weights`) takes its rows already
 /// scaled by its `2^s` this way. `e` must lie in `[0, 127]`, so that
 /// `2^(n + e)` with `n` in `[-126, 0]` stays a normal number (the result
 /// is then `exp2_weight(t) * 2^e` with no rounding: a product by a power of
