@@ -16,8 +16,10 @@
 //! window's sum is `R` (or, for a window clipped by the offset's valid
 //! rectangle, the exact sum of its rows): the distances' box hands it to
 //! the weight's loop as an integer, which scales it by `2^-s` with the patch
-//! mean's factor (one multiply); the weights' box also keeps `f32(R)`, the
-//! mean weights in units of `2^-s` for the accumulation (numerators and
+//! mean's factor (one multiply); the weights' box hands `R` to the
+//! accumulation, which reads it as `f32(R)` (since session 24; a stored
+//! `f32` copy before), the
+//! mean weights in units of `2^-s` (numerators and
 //! denominator share the unit, which cancels exactly in their ratio: a power
 //! of two; with `filter::repair`'s bound of 1e18 on values, a numerator
 //! stays below `441 * 49 * 2^25 * 1e18 < 1e30` at `r = 10`, `f = 3`). Either is a function of the window's quantised rows alone: the
@@ -164,10 +166,6 @@ pub(super) struct ColumnBox {
     ring: Aligned<i32>,
     /// The sum of the last `T` rows pushed (or of all rows, while fewer).
     run: Aligned<i32>,
-    /// With `float_sums`, `run` as `f32` (in units of `2^-s`), once it
-    /// holds `T` rows: the last whole window's sums, for the accumulation.
-    sums: Aligned,
-    float_sums: bool,
     /// A clipped window's integer sums.
     clip_sums: Aligned<i32>,
     stride: usize,
@@ -179,16 +177,11 @@ pub(super) struct ColumnBox {
 
 impl ColumnBox {
     /// Buffers for rows of up to `width` samples and windows of `cap = 2f + 1` rows.
-    /// With `float_sums`, the whole windows' sums are also kept as `f32`
-    /// ([`ColumnBox::whole`], [`ColumnBox::sums`]); without, they are read as
-    /// integers ([`ColumnBox::window`]).
-    pub(super) fn new(width: usize, cap: usize, q: Quantiser, float_sums: bool) -> ColumnBox {
+    pub(super) fn new(width: usize, cap: usize, q: Quantiser) -> ColumnBox {
         let st = stride(width);
         ColumnBox {
             ring: Aligned::zeroed(st * cap),
             run: Aligned::zeroed(st),
-            sums: Aligned::zeroed(if float_sums { st } else { 0 }),
-            float_sums,
             clip_sums: Aligned::zeroed(st),
             stride: st,
             cap,
@@ -202,17 +195,16 @@ impl ColumnBox {
         self.q
     }
 
-    /// Samples (4 bytes each) held: the ring, the running sums, the window
-    /// sums and a clipped window's sums.
+    /// Samples (4 bytes each) held: the ring, the running sums and a
+    /// clipped window's sums.
     pub(super) fn samples(width: usize, cap: usize) -> u64 {
-        (stride(width) * (cap + 3)) as u64
+        (stride(width) * (cap + 2)) as u64
     }
 
     /// Push frame row `y` (`h`, `w = h.len()` samples already scaled by
     /// [`Quantiser::scale`]; `y0`: the step's first row of this box, rows
     /// pushed in order from it): quantise it into the ring and update the
-    /// running sums (and, once they cover `T` rows, their `f32` values), in
-    /// one pass. With `CLAMP` false the samples must lie inside the clamp
+    /// running sums, in one pass. With `CLAMP` false the samples must lie inside the clamp
     /// (a weights' box, see [`Quantiser::weights`]) and are only rounded.
     #[inline(always)]
     pub(super) fn pushed<const CLAMP: bool>(&mut self, y: i64, y0: i64, h: &[f32]) {
@@ -239,28 +231,17 @@ impl ColumnBox {
                 (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
             }
         }
-        if self.float_sums && k + 1 >= self.cap {
-            for (o, s) in self.sums[..w].iter_mut().zip(self.run[..w].iter()) {
-                *o = *s as f32;
-            }
-        }
         self.last_row = y;
     }
 
-    /// Window sums of row `y` as `f32` in units of `2^-s` (a box with
-    /// `float_sums`): the vertical sums over `[y - f, y + f] ∩ clip` (`y0`:
+    /// Window sums of row `y` as `f32` in units of `2^-s`: the vertical sums over `[y - f, y + f] ∩ clip` (`y0`:
     /// the step's first row of this box); returns the window's height. A
     /// whole window's last row must be the last row pushed.
     #[inline(always)]
     pub(super) fn sums(&mut self, y0: i64, y: i64, clip: Rect, f: i64, out: &mut [f32]) -> f32 {
         let w = out.len();
-        match self.whole(y, clip, f, w) {
-            Ok(sums) => out.copy_from_slice(sums),
-            Err(count) => {
-                for (o, s) in out.iter_mut().zip(self.clipped(y0, y, clip, f, count, w)) {
-                    *o = *s as f32;
-                }
-            }
+        for (o, s) in out.iter_mut().zip(self.window(y0, y, clip, f, w).1) {
+            *o = *s as f32;
         }
         self.height(y, clip, f)
     }
@@ -285,18 +266,18 @@ impl ColumnBox {
         ((y + f).min(clip.y1 - 1) - (y - f).max(clip.y0) + 1) as f32
     }
 
-    /// A whole window's `f32` sums (`w` samples, a box with `float_sums`),
-    /// or the height of a clipped one.
+    /// A whole window's integer sums (`w` samples, worth `2^-s` each: the
+    /// running sums themselves, which the accumulation reads and converts
+    /// to `f32` as it goes), or the height of a clipped one.
     #[inline(always)]
-    pub(super) fn whole(&self, y: i64, clip: Rect, f: i64, w: usize) -> Result<&[f32], usize> {
+    pub(super) fn whole(&self, y: i64, clip: Rect, f: i64, w: usize) -> Result<&[i32], usize> {
         let (a, b) = ((y - f).max(clip.y0), (y + f).min(clip.y1 - 1));
         let count = (b - a + 1) as usize;
         if count != self.cap {
             return Err(count);
         }
-        debug_assert!(self.float_sums);
         debug_assert_eq!(self.last_row, b, "a whole window is summed right after its last row");
-        Ok(&self.sums[..w])
+        Ok(&self.run[..w])
     }
 
     /// A clipped window's sums: its `count` rows' exact integer sum.
@@ -344,7 +325,7 @@ mod tests {
         clip: Rect,
     ) -> Vec<(i64, Vec<i32>, Vec<f32>)> {
         let cap = (2 * f + 1) as usize;
-        let mut b = ColumnBox::new(w, cap, q, true);
+        let mut b = ColumnBox::new(w, cap, q);
         let mut out = Vec::new();
         // Rows whose window lies in the rows pushed (or is clipped at the top).
         let mut next = if y0 == clip.y0 { y0 } else { y0 + f };

@@ -310,7 +310,7 @@ pub fn chunk<const W: usize>(s: &[f32], i: usize) -> &[f32; W] {
 
 /// [`chunk`] for any sample type.
 #[inline(always)]
-fn chunk_of<T, const W: usize>(s: &[T], i: usize) -> &[T; W] {
+pub fn chunk_of<T, const W: usize>(s: &[T], i: usize) -> &[T; W] {
     debug_assert!(i + W <= s.len());
     assert!(s.len() >= W, "a chunk is W samples");
     let i = i.min(s.len() - W);
@@ -338,7 +338,7 @@ pub fn chunk_mut<const W: usize>(s: &mut [f32], i: usize) -> &mut [f32; W] {
 /// standard `array::map` and `array::from_fn` stay out-of-line calls (each
 /// with a `vzeroupper`) inside the block kernel's tier wrappers.
 #[inline(always)]
-pub fn cut<const N: usize>(rows: [&[f32]; N], n: usize) -> [&[f32]; N] {
+pub fn cut<T, const N: usize>(rows: [&[T]; N], n: usize) -> [&[T]; N] {
     let mut out = rows;
     for r in out.iter_mut() {
         *r = &r[..n];

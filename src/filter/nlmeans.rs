@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::column_sums::{ColumnBox, Quantiser};
 use super::kernels::{
     CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_i32,
-    chunk_mut, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes, feature_square_sum,
+    chunk_mut, chunk_of, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes, feature_square_sum,
     feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any, lanes2,
     log2_distance_scale, rows_sum,
 };
@@ -258,9 +258,8 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
                 mid.width(),
                 cap,
                 Quantiser::distances(cap, jobs[i / (2 * GROUP_MAX)].values.len(), s.alpha, k2),
-                false,
             ),
-            h2: ColumnBox::new(block.width(), cap, Quantiser::weights(cap), true),
+            h2: ColumnBox::new(block.width(), cap, Quantiser::weights(cap)),
             mean_w: Aligned::zeroed(block.width()),
         })
         .collect();
@@ -607,26 +606,27 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                                 scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                             }
                         }
-                        let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
-                        for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
-                            let buf = &bufs[lane_buf(j, si, g)];
-                            let aw = lane.acc.width();
-                            let w = if direct {
-                                buf.h2.whole(yl, lane.valid, f, aw).expect("a whole window")
-                            } else {
-                                &buf.mean_w[..aw]
-                            };
-                            *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
+                        let lanes = side.lanes.len();
+                        if direct {
+                            // The box's integer sums, read as `f32` by the accumulation.
+                            let mut rows = [LaneRow::<i32> { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
+                            for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
+                                let aw = lane.acc.width();
+                                let w =
+                                    bufs[lane_buf(j, si, g)].h2.whole(yl, lane.valid, f, aw).expect("a whole window");
+                                *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
+                            }
+                            let at = (yl, side.dy, block);
+                            accumulate::<W, AVX512, i32>(&mut num[j], &mut den[j], &job.values, &rows[..lanes], at);
+                        } else {
+                            let mut rows = [LaneRow::<f32> { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
+                            for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
+                                let w = &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()];
+                                *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
+                            }
+                            let at = (yl, side.dy, block);
+                            accumulate::<W, AVX512, f32>(&mut num[j], &mut den[j], &job.values, &rows[..lanes], at);
                         }
-                        accumulate::<W, AVX512>(
-                            &mut num[j],
-                            &mut den[j],
-                            &job.values,
-                            &rows[..side.lanes.len()],
-                            yl,
-                            side.dy,
-                            block,
-                        );
                     }
                 }
             }
@@ -825,10 +825,36 @@ struct LaneBuffers {
 
 /// One lane's row of mean weights `w`, for columns from `x0`.
 #[derive(Clone, Copy)]
-struct LaneRow<'a> {
-    w: &'a [f32],
+struct LaneRow<'a, T = f32> {
+    w: &'a [T],
     x0: i64,
     dx: i64,
+}
+
+/// A mean weight as the accumulation reads it: an `f32`, or a whole
+/// window's integer sum from the weights' box, converted as it is read
+/// (`f32(R)`, the same value a stored copy would hold).
+trait WeightSample: Copy {
+    /// Whether the samples are the box's `i32` sums.
+    const INT: bool;
+    /// The sample's value.
+    fn value(self) -> f32;
+}
+
+impl WeightSample for f32 {
+    const INT: bool = false;
+    #[inline(always)]
+    fn value(self) -> f32 {
+        self
+    }
+}
+
+impl WeightSample for i32 {
+    const INT: bool = true;
+    #[inline(always)]
+    fn value(self) -> f32 {
+        self as f32
+    }
 }
 
 /// Horizontal window sums of one row: `dst[x] = sum of src over
@@ -987,17 +1013,15 @@ fn window_columns(
 /// whichever loop handles the pixel, so the result equals accumulating the
 /// offsets one after the other.
 #[inline(always)]
-fn accumulate<const W: usize, const AVX512: bool>(
+fn accumulate<const W: usize, const AVX512: bool, T: WeightSample>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
-    rows: &[LaneRow<'_>],
-    y: i64,
-    dy: i64,
-    block: Rect,
+    rows: &[LaneRow<'_, T>],
+    (y, dy, block): (i64, i64, Rect),
 ) {
     let row_off = (y - block.y0) as usize * block.width();
-    let end = |l: &LaneRow<'_>| l.x0 + l.w.len() as i64;
+    let end = |l: &LaneRow<'_, T>| l.x0 + l.w.len() as i64;
     // Columns every lane covers take the fused path; the others (next to the
     // frame's edges) add each covering lane's terms in lane order.
     let (c0, c1) = (rows.iter().map(|l| l.x0).max().unwrap_or(0), rows.iter().map(end).min().unwrap_or(0));
@@ -1007,7 +1031,7 @@ fn accumulate<const W: usize, const AVX512: bool>(
         let i = row_off + (x - block.x0) as usize;
         for l in rows.iter().filter(|l| l.x0 <= x && x < end(l)) {
             let k = (x - l.x0) as usize;
-            let w = l.w[k];
+            let w = l.w[k].value();
             den[i] += w;
             for (c, n) in num.iter_mut().enumerate() {
                 n[i] = w.mul_add(values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0], n[i]);
@@ -1020,13 +1044,13 @@ fn accumulate<const W: usize, const AVX512: bool>(
         const _: () = assert!(GROUP_MAX == 7);
         let at = ((y, dy), c0, c1, span);
         match rows.len() {
-            1 => accumulate_span::<W, 1, AVX512>(num, den, values, rows, at),
-            2 => accumulate_span::<W, 2, AVX512>(num, den, values, rows, at),
-            3 => accumulate_span::<W, 3, AVX512>(num, den, values, rows, at),
-            4 => accumulate_span::<W, 4, AVX512>(num, den, values, rows, at),
-            5 => accumulate_span::<W, 5, AVX512>(num, den, values, rows, at),
-            6 => accumulate_span::<W, 6, AVX512>(num, den, values, rows, at),
-            _ => accumulate_span::<W, GROUP_MAX, AVX512>(num, den, values, rows, at),
+            1 => accumulate_span::<W, 1, AVX512, T>(num, den, values, rows, at),
+            2 => accumulate_span::<W, 2, AVX512, T>(num, den, values, rows, at),
+            3 => accumulate_span::<W, 3, AVX512, T>(num, den, values, rows, at),
+            4 => accumulate_span::<W, 4, AVX512, T>(num, den, values, rows, at),
+            5 => accumulate_span::<W, 5, AVX512, T>(num, den, values, rows, at),
+            6 => accumulate_span::<W, 6, AVX512, T>(num, den, values, rows, at),
+            _ => accumulate_span::<W, GROUP_MAX, AVX512, T>(num, den, values, rows, at),
         }
     }
 }
@@ -1034,20 +1058,20 @@ fn accumulate<const W: usize, const AVX512: bool>(
 /// The fused accumulation over columns `[c0, c1)` that all `G` lanes cover.
 #[inline(always)]
 #[allow(clippy::type_complexity)]
-fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
+fn accumulate_span<const W: usize, const G: usize, const AVX512: bool, T: WeightSample>(
     num: &mut [Aligned],
     den: &mut [f32],
     values: &[&Plane],
-    rows: &[LaneRow<'_>],
+    rows: &[LaneRow<'_, T>],
     ((y, dy), c0, c1, span): ((i64, i64), i64, i64, std::ops::Range<usize>),
 ) {
     let n = (c1 - c0) as usize;
-    let mut w: [&[f32]; G] = [&[]; G];
+    let mut w: [&[T]; G] = [&[]; G];
     for g in 0..G {
         let (row, from) = (&rows[g], (c0 - rows[g].x0) as usize);
         w[g] = &row.w[from..][..n];
     }
-    let q = |c: usize| lane_values::<G>(values[c], rows, y + dy, c0, c1);
+    let q = |c: usize| lane_values::<G, T>(values[c], rows, y + dy, c0, c1);
     let d = &mut den[span.clone()];
     #[cfg(target_arch = "x86_64")]
     if AVX512
@@ -1064,9 +1088,9 @@ fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
         // runs only on CPUs with avx512f and fma.
         unsafe {
             if rev {
-                fused_rgb_shifted_avx512::<G, true>([d, n0, n1, n2], w, rows3);
+                fused_rgb_shifted_avx512::<G, true, T>([d, n0, n1, n2], w, rows3);
             } else {
-                fused_rgb_shifted_avx512::<G, false>([d, n0, n1, n2], w, rows3);
+                fused_rgb_shifted_avx512::<G, false, T>([d, n0, n1, n2], w, rows3);
             }
         }
         return;
@@ -1074,12 +1098,12 @@ fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
     if let [n0, n1, n2] = num {
         // The common case, in one pass: each weight is loaded once.
         let (n0, n1, n2) = (&mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
-        fused_rgb::<W, G>([d, n0, n1, n2], w, [q(0), q(1), q(2)]);
+        fused_rgb::<W, G, T>([d, n0, n1, n2], w, [q(0), q(1), q(2)]);
     } else {
         for i in 0..n {
             let mut dd = d[i];
             for wg in &w {
-                dd += wg[i];
+                dd += wg[i].value();
             }
             d[i] = dd;
         }
@@ -1088,7 +1112,7 @@ fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
             for i in 0..n {
                 let mut a = nc[i];
                 for g in 0..G {
-                    a = w[g][i].mul_add(qc[g][i], a);
+                    a = w[g][i].value().mul_add(qc[g][i], a);
                 }
                 nc[i] = a;
             }
@@ -1101,7 +1125,7 @@ fn accumulate_span<const W: usize, const G: usize, const AVX512: bool>(
 /// decrease.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn consecutive_dx(rows: &[LaneRow<'_>]) -> Option<(i64, bool)> {
+fn consecutive_dx<T>(rows: &[LaneRow<'_, T>]) -> Option<(i64, bool)> {
     let s = rows[1].dx - rows[0].dx;
     if (s != 1 && s != -1) || !rows.windows(2).all(|r| r[1].dx - r[0].dx == s) {
         return None;
@@ -1125,9 +1149,9 @@ fn consecutive_dx(rows: &[LaneRow<'_>]) -> Option<(i64, bool)> {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::needless_range_loop)]
-unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool>(
+unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: WeightSample>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
-    w: [&[f32]; G],
+    w: [&[T]; G],
     rows: [&[f32]; 3],
 ) {
     use std::arch::x86_64::*;
@@ -1167,7 +1191,10 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool>(
             let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
             let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
             for g in 0..G {
-                let wg = _mm512_loadu_ps(w[g].as_ptr().add(i));
+                let at = w[g].as_ptr().add(i);
+                // An integer sum converts as `value` does (`f32(R)`, rounded to nearest).
+                let wg =
+                    if T::INT { _mm512_cvtepi32_ps(_mm512_loadu_si512(at.cast())) } else { _mm512_loadu_ps(at.cast()) };
                 let o = off(g);
                 dd = _mm512_add_ps(dd, wg);
                 a0 = _mm512_fmadd_ps(wg, v[0][o], a0);
@@ -1183,7 +1210,7 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool>(
     for i in n / 16 * 16..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = w[g][i];
+            let wg = w[g][i].value();
             let o = off(g);
             dd += wg;
             a0 = wg.mul_add(rows[0][i + o], a0);
@@ -1196,7 +1223,13 @@ unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool>(
 
 /// Row `y` of `plane` over columns `c0..c1` shifted by each lane's `dx`.
 #[inline(always)]
-fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i64, c0: i64, c1: i64) -> [&'a [f32]; G] {
+fn lane_values<'a, const G: usize, T>(
+    plane: &'a Plane,
+    rows: &[LaneRow<'_, T>],
+    y: i64,
+    c0: i64,
+    c1: i64,
+) -> [&'a [f32]; G] {
     let mut q: [&[f32]; G] = [&[]; G];
     for (qg, row) in q.iter_mut().zip(rows) {
         *qg = plane.row(y, c0 + row.dx, c1 + row.dx);
@@ -1207,9 +1240,9 @@ fn lane_values<'a, const G: usize>(plane: &'a Plane, rows: &[LaneRow<'_>], y: i6
 /// `den += w_g` and `num_c += w_g * q_cg` for `g` in order, three channels
 /// (separate `&mut` arguments: the compiler knows they do not alias).
 #[inline(always)]
-fn fused_rgb<const W: usize, const G: usize>(
+fn fused_rgb<const W: usize, const G: usize, T: WeightSample>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
-    w: [&[f32]; G],
+    w: [&[T]; G],
     [q0, q1, q2]: [[&[f32]; G]; 3],
 ) {
     let n = d.len();
@@ -1224,12 +1257,13 @@ fn fused_rgb<const W: usize, const G: usize>(
             (*chunk::<W>(d, i), *chunk::<W>(n0, i), *chunk::<W>(n1, i), *chunk::<W>(n2, i));
         for g in 0..G {
             let (wg, x0, x1, x2) =
-                (chunk::<W>(w[g], i), chunk::<W>(q0[g], i), chunk::<W>(q1[g], i), chunk::<W>(q2[g], i));
+                (chunk_of::<T, W>(w[g], i), chunk::<W>(q0[g], i), chunk::<W>(q1[g], i), chunk::<W>(q2[g], i));
             for k in 0..W {
-                dd[k] += wg[k];
-                a0[k] = wg[k].mul_add(x0[k], a0[k]);
-                a1[k] = wg[k].mul_add(x1[k], a1[k]);
-                a2[k] = wg[k].mul_add(x2[k], a2[k]);
+                let wk = wg[k].value();
+                dd[k] += wk;
+                a0[k] = wk.mul_add(x0[k], a0[k]);
+                a1[k] = wk.mul_add(x1[k], a1[k]);
+                a2[k] = wk.mul_add(x2[k], a2[k]);
             }
         }
         (*chunk_mut::<W>(d, i), *chunk_mut::<W>(n0, i), *chunk_mut::<W>(n1, i), *chunk_mut::<W>(n2, i)) =
@@ -1238,7 +1272,7 @@ fn fused_rgb<const W: usize, const G: usize>(
     for i in whole..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = w[g][i];
+            let wg = w[g][i].value();
             dd += wg;
             a0 = wg.mul_add(q0[g][i], a0);
             a1 = wg.mul_add(q1[g][i], a1);
