@@ -283,7 +283,24 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
         Lane { dx, valid, d: outer.intersect(&valid), w: mid.intersect(&valid), acc: block.intersect(&valid) }
     };
 
-    let ctx = StepCtx { jobs, features, f, block, s, k2 };
+    // Per job, once per block: the constants that scale the distances by
+    // their box's `2^s` (`eps` and `k^2` divided by it, see
+    // [`distance_rows`]) and the patch mean's scale (channel mean,
+    // `-log2(e)` and the box's step `2^-s`), the same for every lane.
+    let scales: Vec<JobScales> = jobs
+        .iter()
+        .enumerate()
+        .map(|(j, job)| {
+            let q = lanes[lane_buf(j, 0, 0)].h1.quantiser();
+            JobScales {
+                distance: (s.alpha, s.eps / q.scale(), k2 / q.scale()),
+                mean: log2_distance_scale(job.values.len()) * q.step(),
+            }
+        })
+        .collect();
+    // The weights' box's scale, through the exponent of their `exp2`.
+    let w_exp = lanes[0].h2.quantiser().exponent();
+    let ctx = StepCtx { jobs, features, f, block, scales: &scales, w_exp };
     for step in offset_schedule(r) {
         let dy = step.dy;
         if !step.paired {
@@ -364,8 +381,19 @@ struct StepCtx<'a, 'j> {
     features: &'a [GuideFeature],
     f: i64,
     block: Rect,
-    s: &'a NlmSettings,
-    k2: f32,
+    /// Per job.
+    scales: &'a [JobScales],
+    /// The weights' box's exponent `s` (see [`weight_row`]).
+    w_exp: i32,
+}
+
+/// A job's constants for its distances and patch means.
+#[derive(Clone, Copy)]
+struct JobScales {
+    /// `(alpha, eps 2^-s, k^2 2^-s)` for [`distance_rows`].
+    distance: (f32, f32, f32),
+    /// The factor of a window's integer sum in the weight's argument.
+    mean: f32,
 }
 
 /// Row buffers shared by every step of a block.
@@ -461,7 +489,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
     bufs: &mut [LaneBuffers],
     scratch: &mut Scratch,
 ) {
-    let StepCtx { jobs, features, f, block, s, k2 } = *ctx;
+    let StepCtx { jobs, features, f, block, scales, w_exp } = *ctx;
     let dy = sides[0].dy;
     // The step rows (a lane's rows minus its side's shift) a pass walks.
     let (mut w_rows, mut a_rows) = ((i64::MAX, i64::MIN), (i64::MAX, i64::MIN));
@@ -479,15 +507,10 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
     };
     let Scratch { drow, mrow, weights, pairs: psum, hrow, tf, square_sums } = scratch;
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
-    // The weights' box's scale, through the exponent of their `exp2`.
-    let w_exp = bufs[0].h2.quantiser().exponent();
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
         for (j, job) in jobs.iter().enumerate() {
-            // The distances scaled by their box's `2^s` through the
-            // denominator's constants (see `distance_rows`).
-            let inv = 1.0 / bufs[lane_buf(j, 0, 0)].h1.quantiser().scale();
-            let consts = (s.alpha, s.eps * inv, k2 * inv);
+            let consts = scales[j].distance;
             match pairs {
                 None => {
                     let side = &sides[0];
@@ -546,10 +569,7 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
             // independent of the others', so the order changes no bit;
             // 0.96-0.97x in interleaved pairs, docs/performance.md session 23).
             for (j, job) in jobs.iter().enumerate().rev() {
-                // Channel mean, `-log2(e)` and the distances' quantisation step
-                // (the same for every lane of a job), folded into the patch
-                // mean's scale.
-                let kd = log2_distance_scale(job.values.len()) * bufs[lane_buf(j, 0, 0)].h1.quantiser().step();
+                let kd = scales[j].mean;
                 for (si, side) in sides.iter().enumerate().rev() {
                     let yl = y + side.shift;
                     if !in_rows(side.w_y, yl) {
@@ -606,26 +626,29 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                                 scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
                             }
                         }
-                        let lanes = side.lanes.len();
+                        let (lanes, at) = (side.lanes, (yl, side.dy, block));
+                        let buf = |g: usize| &bufs[lane_buf(j, si, g)];
                         if direct {
                             // The box's integer sums, read as `f32` by the accumulation.
-                            let mut rows = [LaneRow::<i32> { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
-                            for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
-                                let aw = lane.acc.width();
-                                let w =
-                                    bufs[lane_buf(j, si, g)].h2.whole(yl, lane.valid, f, aw).expect("a whole window");
-                                *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
-                            }
-                            let at = (yl, side.dy, block);
-                            accumulate::<W, AVX512, i32>(&mut num[j], &mut den[j], &job.values, &rows[..lanes], at);
+                            let rows = lane_rows(lanes, |g, l| {
+                                buf(g).h2.whole(yl, l.valid, f, l.acc.width()).expect("a whole window")
+                            });
+                            accumulate::<W, AVX512, i32>(
+                                &mut num[j],
+                                &mut den[j],
+                                &job.values,
+                                &rows[..lanes.len()],
+                                at,
+                            );
                         } else {
-                            let mut rows = [LaneRow::<f32> { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
-                            for (g, (lane, row)) in side.lanes.iter().zip(rows.iter_mut()).enumerate() {
-                                let w = &bufs[lane_buf(j, si, g)].mean_w[..lane.acc.width()];
-                                *row = LaneRow { w, x0: lane.acc.x0, dx: lane.dx };
-                            }
-                            let at = (yl, side.dy, block);
-                            accumulate::<W, AVX512, f32>(&mut num[j], &mut den[j], &job.values, &rows[..lanes], at);
+                            let rows = lane_rows(lanes, |g, l| &buf(g).mean_w[..l.acc.width()]);
+                            accumulate::<W, AVX512, f32>(
+                                &mut num[j],
+                                &mut den[j],
+                                &job.values,
+                                &rows[..lanes.len()],
+                                at,
+                            );
                         }
                     }
                 }
@@ -829,6 +852,17 @@ struct LaneRow<'a, T = f32> {
     w: &'a [T],
     x0: i64,
     dx: i64,
+}
+
+/// The accumulation's rows of a side's lanes, lane `g`'s mean weights
+/// `w(g, lane)` (the first `lanes.len()` rows).
+#[inline(always)]
+fn lane_rows<'a, T: Copy>(lanes: &[Lane], w: impl Fn(usize, &Lane) -> &'a [T]) -> [LaneRow<'a, T>; GROUP_MAX] {
+    let mut rows = [LaneRow { w: &[], x0: 0, dx: 0 }; GROUP_MAX];
+    for (g, (lane, row)) in lanes.iter().zip(rows.iter_mut()).enumerate() {
+        *row = LaneRow { w: w(g, lane), x0: lane.acc.x0, dx: lane.dx };
+    }
+    rows
 }
 
 /// A mean weight as the accumulation reads it: an `f32`, or a whole
