@@ -153,6 +153,11 @@ impl Quantiser {
         self.exponent
     }
 
+    /// `H 2^s`, the clamp of scaled samples (see [`Quantiser::quantise`]).
+    pub(super) fn limit(&self) -> f32 {
+        self.limit
+    }
+
     /// `2^-s`: a sum of quantised rows is worth `sum * 2^-s`.
     pub(super) fn step(&self) -> f32 {
         self.inv
@@ -208,30 +213,28 @@ impl ColumnBox {
     /// (a weights' box, see [`Quantiser::weights`]) and are only rounded.
     #[inline(always)]
     pub(super) fn pushed<const CLAMP: bool>(&mut self, y: i64, y0: i64, h: &[f32]) {
-        let w = h.len();
+        let mut slot = self.slot(y, y0, h.len());
+        slot.push::<CLAMP>(0, h);
+    }
+
+    /// The ring slot and running sums that row `y` (`w` samples, `y0` as
+    /// [`ColumnBox::pushed`]) updates, for a producer that pushes its
+    /// columns in parts ([`PushSlot::push`], or its own kernel doing the
+    /// same per sample): every column of the row must be pushed once.
+    #[inline(always)]
+    pub(super) fn slot(&mut self, y: i64, y0: i64, w: usize) -> PushSlot<'_> {
         debug_assert!(y == y0 || y == self.last_row + 1, "row {y} pushed after {}", self.last_row);
+        self.last_row = y;
         let k = (y - y0) as usize;
         let at = k % self.cap * self.stride;
-        let q = self.q;
-        let (ring, run) = (&mut self.ring[at..at + w], &mut self.run[..w]);
-        if k == 0 {
-            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.pushed_sample::<CLAMP>(*x);
-                (*r, *s) = (v, v);
-            }
+        let case = if k == 0 {
+            PushCase::First
         } else if k < self.cap {
-            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.pushed_sample::<CLAMP>(*x);
-                (*r, *s) = (v, s.wrapping_add(v));
-            }
+            PushCase::Filling
         } else {
-            // The slot holds row `y - T`, which leaves the window.
-            for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
-                let v = q.pushed_sample::<CLAMP>(*x);
-                (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
-            }
-        }
-        self.last_row = y;
+            PushCase::Steady
+        };
+        PushSlot { case, q: self.q, ring: &mut self.ring[at..at + w], run: &mut self.run[..w] }
     }
 
     /// Window sums of row `y` as `f32` in units of `2^-s`: the vertical sums over `[y - f, y + f] ∩ clip` (`y0`:
@@ -297,6 +300,59 @@ impl ColumnBox {
             }
         }
         acc
+    }
+}
+
+/// What a pushed row does to each column's running sum `R`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum PushCase {
+    /// The step's first row: `R = q`.
+    First,
+    /// Fewer than `T` rows before it: `R += q`.
+    Filling,
+    /// The slot holds row `y - T`, which leaves the window: `R += q - q(y - T)`.
+    Steady,
+}
+
+/// One row's ring slot and running sums (see [`ColumnBox::slot`]).
+pub(super) struct PushSlot<'a> {
+    pub(super) case: PushCase,
+    pub(super) q: Quantiser,
+    /// The ring slot: row `y - T` (in [`PushCase::Steady`]), to be replaced by row `y`.
+    pub(super) ring: &'a mut [i32],
+    /// The running sums.
+    pub(super) run: &'a mut [i32],
+}
+
+impl PushSlot<'_> {
+    /// Push columns `at..at + h.len()` of the row (`h` scaled as
+    /// [`ColumnBox::pushed`] requires, clamped and rounded with `CLAMP`,
+    /// else only rounded).
+    #[inline(always)]
+    pub(super) fn push<const CLAMP: bool>(&mut self, at: usize, h: &[f32]) {
+        let q = self.q;
+        let w = h.len();
+        let (ring, run) = (&mut self.ring[at..at + w], &mut self.run[at..at + w]);
+        match self.case {
+            PushCase::First => {
+                for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                    let v = q.pushed_sample::<CLAMP>(*x);
+                    (*r, *s) = (v, v);
+                }
+            }
+            PushCase::Filling => {
+                for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                    let v = q.pushed_sample::<CLAMP>(*x);
+                    (*r, *s) = (v, s.wrapping_add(v));
+                }
+            }
+            PushCase::Steady => {
+                for ((r, s), x) in ring.iter_mut().zip(run.iter_mut()).zip(h) {
+                    let v = q.pushed_sample::<CLAMP>(*x);
+                    (*r, *s) = (v, s.wrapping_add(v).wrapping_sub(*r));
+                }
+            }
+        }
     }
 }
 

@@ -397,10 +397,101 @@ pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
         }
         return;
     }
-    let len = src.len();
-    // Samples `at..at + 16` of `src`, lanes past its end zero (masked off,
-    // so never read).
-    let load = |at: usize| {
+    let full = n / CHUNK;
+    let mut taps = Taps7::new(src);
+    for c in 0..full {
+        let i = c * CHUNK;
+        let o = taps.next(i);
+        // SAFETY: `i + 16 <= n`.
+        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
+    }
+    if !n.is_multiple_of(CHUNK) {
+        // The last 16 outputs (overlapping the previous chunk), from scratch.
+        let i = n - CHUNK;
+        let o = Taps7::new(&src[i..]).next(0);
+        // SAFETY: `i + 16 == n`.
+        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
+    }
+}
+
+/// The 7-tap window sums of [`taps7_sum_avx512`] (the same expression, bit
+/// for bit), pushed straight into a box's row, without storing them: each
+/// sum `x` becomes `v = round(x)` (to nearest, ties to even), clamped
+/// first to `[-limit, limit]` with `CLAMP` (NaN to `-limit`), exactly as
+/// `column_sums::Quantiser` does one sample; then `ring[i] = v` and the
+/// running sum `run[i]` becomes `v` (`CASE` 0), `run[i] + v` (1) or
+/// `run[i] + v - ring[i]` (2, the old `ring[i]`), wrapping. `src` holds
+/// `ring.len() + 6` samples; the last chunk is masked, so every column is
+/// pushed once.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn taps7_push_avx512<const CLAMP: bool, const CASE: u8>(
+    src: &[f32],
+    ring: &mut [i32],
+    run: &mut [i32],
+    limit: f32,
+) {
+    use std::arch::x86_64::*;
+    let n = ring.len();
+    assert!(run.len() == n && src.len() == n + 6, "a 7-tap window per pushed sample");
+    let (lo, hi) = (_mm512_set1_ps(-limit), _mm512_set1_ps(limit));
+    let mut taps = Taps7::new(src);
+    for i in (0..n).step_by(CHUNK) {
+        let x = taps.next(i);
+        // `max` returns its second operand when the first is NaN.
+        let x = if CLAMP { _mm512_min_ps(_mm512_max_ps(x, lo), hi) } else { x };
+        let v = _mm512_cvt_roundps_epi32::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(x);
+        let k: __mmask16 = if n - i >= CHUNK { 0xFFFF } else { (1u16 << (n - i)) - 1 };
+        // SAFETY: `i < n`, and the mask selects only the columns below `n`.
+        unsafe {
+            let (rp, sp) = (ring.as_mut_ptr().add(i), run.as_mut_ptr().add(i));
+            let s = match CASE {
+                0 => v,
+                1 => _mm512_add_epi32(_mm512_maskz_loadu_epi32(k, sp), v),
+                _ => _mm512_sub_epi32(
+                    _mm512_add_epi32(_mm512_maskz_loadu_epi32(k, sp), v),
+                    _mm512_maskz_loadu_epi32(k, rp),
+                ),
+            };
+            _mm512_mask_storeu_epi32(rp, k, v);
+            _mm512_mask_storeu_epi32(sp, k, s);
+        }
+    }
+}
+
+/// The 7-tap sums of consecutive chunks of a row `src` (AVX-512): the
+/// samples from the chunk's start and 16 further (`x0`, `x1`), and their
+/// pair sums `p[j] = src[j] + src[j + 1]` (`p0`), carried to the next chunk.
+#[cfg(target_arch = "x86_64")]
+struct Taps7<'a> {
+    src: &'a [f32],
+    x0: std::arch::x86_64::__m512,
+    x1: std::arch::x86_64::__m512,
+    p0: std::arch::x86_64::__m512,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<'a> Taps7<'a> {
+    /// Ready for the chunk at 0.
+    #[inline(always)]
+    fn new(src: &'a [f32]) -> Taps7<'a> {
+        use std::arch::x86_64::*;
+        let (x0, x1) = (Self::load(src, 0), Self::load(src, CHUNK));
+        // SAFETY: the callers run only on CPUs with avx512f (their wrappers' target feature).
+        let p0 = unsafe { _mm512_add_ps(x0, valign::<1>(x0, x1)) };
+        Taps7 { src, x0, x1, p0 }
+    }
+
+    /// Samples `at..at + 16` of `src`, lanes past its end zero (masked
+    /// off, so never read).
+    #[inline(always)]
+    fn load(src: &[f32], at: usize) -> std::arch::x86_64::__m512 {
+        use std::arch::x86_64::*;
+        let len = src.len();
         let k: __mmask16 = if at >= len {
             0
         } else if len - at >= 16 {
@@ -409,42 +500,35 @@ pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
             (1u16 << (len - at)) - 1
         };
         // SAFETY: the mask selects only lanes inside `src`; masked-off
-        // lanes are not accessed.
+        // lanes are not accessed (avx512f: see `new`).
         unsafe { _mm512_maskz_loadu_ps(k, src.as_ptr().wrapping_add(at)) }
-    };
-    // `(a:b)` shifted down by `K` lanes: lane `j` is `a[j + K]`, or `b[j + K - 16]`.
-    macro_rules! sh {
-        ($k:literal, $a:expr, $b:expr) => {
-            _mm512_castsi512_ps(_mm512_alignr_epi32::<$k>(_mm512_castps_si512($b), _mm512_castps_si512($a)))
-        };
     }
-    // The outputs `i..i + 16` from `x0, x1` = samples from `i`, `i + 16`, and
-    // `p0, p1` = pair sums from `i`, `i + 16` (only the first 4 of `p1` are used).
-    let chunk_at = |x0: __m512, x1: __m512, p0: __m512, p1: __m512| {
-        let acc = _mm512_add_ps(p0, sh!(2, p0, p1));
-        let acc = _mm512_add_ps(acc, sh!(4, p0, p1));
-        _mm512_add_ps(acc, sh!(6, x0, x1))
-    };
-    let full = n / CHUNK;
-    let (mut x0, mut x1) = (load(0), load(CHUNK));
-    let mut p0 = _mm512_add_ps(x0, sh!(1, x0, x1));
-    for c in 0..full {
-        let i = c * CHUNK;
-        let x2 = load(i + 2 * CHUNK);
-        let p1 = _mm512_add_ps(x1, sh!(1, x1, x2));
-        let o = chunk_at(x0, x1, p0, p1);
-        // SAFETY: `i + 16 <= n`.
-        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
-        (x0, x1, p0) = (x1, x2, p1);
+
+    /// The sums of outputs `i..i + 16`, `i` the chunk after the previous call's (0 first).
+    #[inline(always)]
+    fn next(&mut self, i: usize) -> std::arch::x86_64::__m512 {
+        use std::arch::x86_64::*;
+        let (x0, x1, p0) = (self.x0, self.x1, self.p0);
+        let x2 = Self::load(self.src, i + 2 * CHUNK);
+        // SAFETY: avx512f, see `new`.
+        unsafe {
+            let p1 = _mm512_add_ps(x1, valign::<1>(x1, x2));
+            let acc = _mm512_add_ps(p0, valign::<2>(p0, p1));
+            let acc = _mm512_add_ps(acc, valign::<4>(p0, p1));
+            let o = _mm512_add_ps(acc, valign::<6>(x0, x1));
+            (self.x0, self.x1, self.p0) = (x1, x2, p1);
+            o
+        }
     }
-    if !n.is_multiple_of(CHUNK) {
-        // The last 16 outputs (overlapping the previous chunk), from scratch.
-        let i = n - CHUNK;
-        let (x0, x1, x2) = (load(i), load(i + CHUNK), load(i + 2 * CHUNK));
-        let (p0, p1) = (_mm512_add_ps(x0, sh!(1, x0, x1)), _mm512_add_ps(x1, sh!(1, x1, x2)));
-        // SAFETY: `i + 16 == n`.
-        unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), chunk_at(x0, x1, p0, p1)) };
-    }
+}
+
+/// `(a:b)` shifted down by `K` lanes: lane `j` is `a[j + K]`, or `b[j + K - 16]`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn valign<const K: i32>(a: std::arch::x86_64::__m512, b: std::arch::x86_64::__m512) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    // SAFETY: avx512f, see `Taps7::new`.
+    unsafe { _mm512_castsi512_ps(_mm512_alignr_epi32::<K>(_mm512_castps_si512(b), _mm512_castps_si512(a))) }
 }
 
 /// The variance term's subtraction `d2 - alpha s` as one fused multiply-add,

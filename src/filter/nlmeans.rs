@@ -589,10 +589,18 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         } else {
                             weight_row::<W, true>(sums, wt, guide, at);
                         }
-                        let aw = lane.acc.width();
-                        let h = &mut hrow[..aw];
-                        window_sums_row::<W, AVX512>(wt, lane.w.x0, lane.valid, f, lane.acc.x0, h, psum);
-                        buf.h2.pushed::<false>(yl, side.w_y.0, h);
+                        let h = (&mut hrow[..lane.acc.width()], &mut psum[..]);
+                        let (valid, (x0, acc_x0)) = (lane.valid, (lane.w.x0, lane.acc.x0));
+                        push_window_sums::<W, AVX512, false>(
+                            &mut buf.h2,
+                            (yl, side.w_y.0),
+                            wt,
+                            x0,
+                            valid,
+                            f,
+                            acc_x0,
+                            h,
+                        );
                     }
                 }
                 // 3. Mean weights of every lane of a side, accumulated in one
@@ -732,9 +740,8 @@ fn push_h1<const W: usize, const AVX512: bool>(
     f: i64,
     (pairs, hrow): (&mut [f32], &mut [f32]),
 ) {
-    let h = &mut hrow[..lane.w.width()];
-    window_sums_row::<W, AVX512>(d, x0, lane.valid, f, lane.w.x0, h, pairs);
-    buf.h1.pushed::<true>(y, y0, h);
+    let h = (&mut hrow[..lane.w.width()], pairs);
+    push_window_sums::<W, AVX512, true>(&mut buf.h1, (y, y0), d, x0, lane.valid, f, lane.w.x0, h);
 }
 
 /// The order in which a block visits the search offsets: the centre alone,
@@ -908,22 +915,10 @@ fn window_sums_row<const W: usize, const AVX512: bool>(
     dst: &mut [f32],
     pairs: &mut [f32],
 ) {
-    let dst_x1 = dst_x0 + dst.len() as i64;
-    let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
-    let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
-    for x in (dst_x0..inner_x0).chain(inner_x1..dst_x1) {
-        let a = ((x - f).max(clip.x0) - src_x0) as usize;
-        let b = ((x + f).min(clip.x1 - 1) - src_x0) as usize;
-        let mut acc = src[a];
-        for v in &src[a + 1..=b] {
-            acc += *v;
-        }
-        dst[(x - dst_x0) as usize] = acc;
-    }
-    let n = (inner_x1 - inner_x0) as usize;
+    let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, dst);
+    let n = inner.len();
     if n > 0 {
-        let from = (inner_x0 - f - src_x0) as usize;
-        let out = &mut dst[(inner_x0 - dst_x0) as usize..][..n];
+        let out = &mut dst[inner];
         match f {
             1 => pair_taps_sum::<W, 1, 2>(&src[from..from + n + 2], pairs, out),
             2 => pair_taps_sum::<W, 2, 3>(&src[from..from + n + 4], pairs, out),
@@ -945,6 +940,79 @@ fn window_sums_row<const W: usize, const AVX512: bool>(
             }
         }
     }
+}
+
+/// The clipped windows of [`window_sums_row`] (the columns next to `clip`'s
+/// edges, each summed in increasing x into `dst`); returns the indices in
+/// `dst` of the whole windows, and where in `src` the first one starts.
+#[inline(always)]
+fn clipped_window_sums(
+    src: &[f32],
+    src_x0: i64,
+    clip: Rect,
+    f: i64,
+    dst_x0: i64,
+    dst: &mut [f32],
+) -> (std::ops::Range<usize>, usize) {
+    let dst_x1 = dst_x0 + dst.len() as i64;
+    let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
+    for x in (dst_x0..inner_x0).chain(inner_x1..dst_x1) {
+        let a = ((x - f).max(clip.x0) - src_x0) as usize;
+        let b = ((x + f).min(clip.x1 - 1) - src_x0) as usize;
+        let mut acc = src[a];
+        for v in &src[a + 1..=b] {
+            acc += *v;
+        }
+        dst[(x - dst_x0) as usize] = acc;
+    }
+    let inner = (inner_x0 - dst_x0) as usize..(inner_x1 - dst_x0) as usize;
+    (inner, (inner_x0 - f - src_x0).max(0) as usize)
+}
+
+/// [`window_sums_row`] of `src` pushed as frame row `y` (`y0` as
+/// [`ColumnBox::pushed`]) into box `b`, `h` a scratch row of the sums'
+/// width. With `AVX512` and `f = 3`, the whole windows' sums go straight
+/// into the box ([`kernels::taps7_push_avx512`](super::kernels::taps7_push_avx512),
+/// the same sums and quantisation), not through `h`: one pass over the row fewer.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
+    b: &mut ColumnBox,
+    (y, y0): (i64, i64),
+    src: &[f32],
+    src_x0: i64,
+    clip: Rect,
+    f: i64,
+    dst_x0: i64,
+    (h, pairs): (&mut [f32], &mut [f32]),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 && f == 3 {
+        use super::column_sums::PushCase;
+        use super::kernels::taps7_push_avx512;
+        let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, h);
+        let mut slot = b.slot(y, y0, h.len());
+        slot.push::<CLAMP>(0, &h[..inner.start]);
+        slot.push::<CLAMP>(inner.end, &h[inner.end..]);
+        if !inner.is_empty() {
+            let src = &src[from..from + inner.len() + 6];
+            let (ring, run) = (&mut slot.ring[inner.clone()], &mut slot.run[inner]);
+            let limit = slot.q.limit();
+            // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
+            // which runs only on CPUs with avx512f.
+            unsafe {
+                match slot.case {
+                    PushCase::First => taps7_push_avx512::<CLAMP, 0>(src, ring, run, limit),
+                    PushCase::Filling => taps7_push_avx512::<CLAMP, 1>(src, ring, run, limit),
+                    PushCase::Steady => taps7_push_avx512::<CLAMP, 2>(src, ring, run, limit),
+                }
+            }
+        }
+        return;
+    }
+    window_sums_row::<W, AVX512>(src, src_x0, clip, f, dst_x0, h, pairs);
+    b.pushed::<CLAMP>(y, y0, h);
 }
 
 /// `out[i]`, the sum of `src[i..i + 2F + 1]`, from the pair sums
@@ -1546,4 +1614,63 @@ fn channel_rows<const C: usize>(planes: &[Plane], y: i64, x0: i64, x1: i64) -> [
 /// Row `y`, columns `x0..x1`, of every plane.
 fn all_rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
     planes.iter().map(|p| p.row(y, x0, x1)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX-512 fused push of 7-tap window sums gives every box the
+    /// rows (and so the window sums) of the portable path, sums stored then
+    /// pushed: with and without the clamp (NaN, infinities and values past
+    /// the clamp in the distances' rows), in each of the three push cases,
+    /// for rows shorter than, equal to and not a multiple of a chunk, with
+    /// a clipped column at each end.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn fused_push_gives_the_rows_of_the_stored_sums() {
+        if !std::arch::is_x86_feature_detected!("avx512f") {
+            eprintln!("skipped: this CPU has no AVX-512F");
+            return;
+        }
+        fn check<const CLAMP: bool>(q: Quantiser, value: &dyn Fn(u32) -> f32) {
+            let f = 3i64;
+            for n in (1..40).chain([47, 48, 49, 110, 129]) {
+                let clip = Rect { x0: 2, x1: n as i64 + 6, y0: 0, y1: 30 };
+                let (src_x0, dst_x0) = (0i64, 4i64);
+                let mut boxes = [ColumnBox::new(n, 7, q), ColumnBox::new(n, 7, q)];
+                let mut sums: [Vec<Vec<i32>>; 2] = [Vec::new(), Vec::new()];
+                for y in 0..clip.y1 {
+                    let src: Vec<f32> = (0..n as u32 + 12).map(|x| value(y as u32 * 1000 + x)).collect();
+                    for (k, b) in boxes.iter_mut().enumerate() {
+                        let (mut h, mut pairs) = (vec![0.0; n], vec![0.0; n + 12]);
+                        let scratch = (&mut h[..], &mut pairs[..]);
+                        if k == 0 {
+                            push_window_sums::<CHUNK, true, CLAMP>(b, (y, 0), &src, src_x0, clip, f, dst_x0, scratch);
+                        } else {
+                            push_window_sums::<CHUNK, false, CLAMP>(b, (y, 0), &src, src_x0, clip, f, dst_x0, scratch);
+                        }
+                        if y >= f {
+                            sums[k].push(b.window(0, y - f, clip, f, n).1.to_vec());
+                        }
+                    }
+                }
+                assert_eq!(sums[0], sums[1], "n = {n}, clamp {CLAMP}");
+                assert!(sums[0].iter().flatten().any(|s| *s != 0), "n = {n}: the sums are not all zero");
+            }
+        }
+        // Distances: mixed magnitudes and signs, scaled by the box's `2^s`,
+        // and some samples NaN, infinite or past the clamp.
+        let q = Quantiser::distances(7, 3, 1.0, 0.2025);
+        check::<true>(q, &|i| match i.wrapping_mul(2_654_435_761) % 97 {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            2 => -1e30,
+            3 => 1e9,
+            h => (h as f32 * 0.37 - 12.0) * q.scale() * if i % 5 == 0 { 1e-3 } else { 1.0 },
+        });
+        // Weights: in `[0, 1]`, scaled by `2^s` (inside the clamp, unclamped).
+        let q = Quantiser::weights(7);
+        check::<false>(q, &|i| (i.wrapping_mul(2_654_435_761) % 1000) as f32 * 1e-3 * q.scale());
+    }
 }
