@@ -380,6 +380,9 @@ pub fn rows_sum<const W: usize, const T: usize>(rows: [&[f32]; T], out: &mut [f3
 /// the same expression as the portable pair sums with `F = 3`, its shifted
 /// operands formed in registers (`valignd`) from one load per chunk instead
 /// of five loads, most of them split across cache lines, and a stored pair row.
+/// The kernel pushes these sums straight into its boxes
+/// ([`taps7_push_avx512`], the same register sums); this stored form is
+/// their reference, tested against the expression.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.

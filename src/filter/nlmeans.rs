@@ -16,7 +16,7 @@ use super::kernels::{
     log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
-use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512, taps7_sum_avx512};
+use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512};
 use super::simd;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Tier;
@@ -901,12 +901,13 @@ impl WeightSample for i32 {
 /// Horizontal window sums of one row: `dst[x] = sum of src over
 /// [x - f, x + f] ∩ clip` for `x` from `dst_x0`. A whole window (f <= 4)
 /// adds the pair sums of columns `(x - f, x - f + 1), (x - f + 2, x - f + 3), ...`
-/// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`; with
-/// `AVX512` and `f = 3`, [`taps7_sum_avx512`], the same sums); a clipped
-/// window (or f > 4) starts from its first sample and adds the others in
-/// increasing x. `src` starts at column `src_x0` and covers every window.
+/// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`; on the
+/// AVX-512 tier with `f = 3`, [`push_window_sums`] forms the same sums in
+/// registers instead); a clipped window (or f > 4) starts from its first
+/// sample and adds the others in increasing x. `src` starts at column
+/// `src_x0` and covers every window.
 #[inline(always)]
-fn window_sums_row<const W: usize, const AVX512: bool>(
+fn window_sums_row<const W: usize>(
     src: &[f32],
     src_x0: i64,
     clip: Rect,
@@ -922,10 +923,6 @@ fn window_sums_row<const W: usize, const AVX512: bool>(
         match f {
             1 => pair_taps_sum::<W, 1, 2>(&src[from..from + n + 2], pairs, out),
             2 => pair_taps_sum::<W, 2, 3>(&src[from..from + n + 4], pairs, out),
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
-            // which runs only on CPUs with avx512f.
-            3 if AVX512 => unsafe { taps7_sum_avx512(&src[from..from + n + 6], out) },
             3 => pair_taps_sum::<W, 3, 4>(&src[from..from + n + 6], pairs, out),
             4 => pair_taps_sum::<W, 4, 5>(&src[from..from + n + 8], pairs, out),
             _ => {
@@ -1011,7 +1008,7 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
         }
         return;
     }
-    window_sums_row::<W, AVX512>(src, src_x0, clip, f, dst_x0, h, pairs);
+    window_sums_row::<W>(src, src_x0, clip, f, dst_x0, h, pairs);
     b.pushed::<CLAMP>(y, y0, h);
 }
 

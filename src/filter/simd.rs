@@ -9,8 +9,9 @@
 //! `kernels::CHUNK`, which changes which samples one loop iteration computes,
 //! never their operations. Two kernels are written for the AVX-512 tier,
 //! each computing the same expression of the same samples:
-//! `kernels::taps7_sum_avx512` (the horizontal window sums for `f = 3`)
-//! forms the shifted operands in registers instead of loading them,
+//! `kernels::taps7_push_avx512` (the horizontal window sums for `f = 3`,
+//! pushed into a lane's box as they are formed) forms the shifted operands
+//! in registers instead of loading them,
 //! and `kernels::feature_square_sum_half_avx512` reads a guide stored as
 //! exact half floats, widened exactly (as the AVX2 tier's
 //! `kernels::feature_square_sum_half_avx2` does, 8 at a time). The kernel's
