@@ -838,6 +838,188 @@ pub unsafe fn feature_square_sum_half_avx2<const C: usize>(
     }
 }
 
+/// The most channels, over all its guides, [`guide_pair_products_avx512`] reads.
+pub const PAIR_GUIDE_CHANNELS_MAX: usize = 16;
+
+/// One lane of [`guide_pair_products_avx512`]: its row of the guides'
+/// weight argument and each guide's factors for the same pixels.
+pub struct ProductLane<'a> {
+    /// Where the lane's first pixel lies in the pair's row, in samples.
+    pub from: usize,
+    /// The lane's row, written from its first sample (`out.len()` samples).
+    pub out: &'a mut [f32],
+    /// Guide `g`'s factors `inv_g` at the lane's pixels, `out.len()` each.
+    pub inv: [&'a [f32]; PRODUCTS_MAX],
+}
+
+/// A guide channel's row for [`guide_pair_products_avx512`]: `f32`, or
+/// half floats (see [`HalfPlane`](crate::image::HalfPlane)), widened
+/// exactly where they are read (widening each row once into a scratch row
+/// shared by a step's pairs measured slower, docs/performance.md session 26).
+#[derive(Clone, Copy)]
+pub enum GuideRow<'a> {
+    /// Samples stored as `f32`.
+    Full(&'a [f32]),
+    /// Samples stored as half floats.
+    Half(&'a [half::f16]),
+}
+
+impl GuideRow<'_> {
+    /// The row's length in samples.
+    pub fn len(&self) -> usize {
+        match self {
+            GuideRow::Full(r) => r.len(),
+            GuideRow::Half(r) => r.len(),
+        }
+    }
+
+    /// Whether the row is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The `16 V` samples from `i`, as `f32` (`i + 16 V <= self.len()`).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn load_chunk<const V: usize>(self, i: usize) -> [std::arch::x86_64::__m512; V] {
+        use std::arch::x86_64::*;
+        assert!(i + 16 * V <= self.len(), "a chunk inside the row");
+        let mut out = [_mm512_setzero_ps(); V];
+        // SAFETY (both arms): the chunk lies inside the row (asserted);
+        // unaligned loads, the halves widened by one `vcvtph2ps` (exact).
+        match self {
+            GuideRow::Full(r) => {
+                for (v, o) in out.iter_mut().enumerate() {
+                    *o = unsafe { _mm512_loadu_ps(r.as_ptr().add(i + 16 * v)) };
+                }
+            }
+            GuideRow::Half(r) => {
+                for (v, o) in out.iter_mut().enumerate() {
+                    *o = unsafe { _mm512_cvtph_ps(_mm256_loadu_si256(r.as_ptr().add(i + 16 * v).cast())) };
+                }
+            }
+        }
+        out
+    }
+}
+
+/// [`feature_square_sum`] of every guide of a pair of offsets followed by
+/// [`fold_feature_products`] (from 0) of both its lanes, in one pass: each
+/// chunk's square sums stay in registers instead of a stored row read back
+/// by each lane. Guide `g` has the channels `ends[g - 1]..ends[g]` (from 0)
+/// of `fp` and `fq` (rows of `n >= CHUNK_AVX512` samples, `f32` or half
+/// floats); a lane gets `min(0, s_0 inv_0, s_1 inv_1, ...)` folded as
+/// `fold_min` folds it, guide by guide, for its pixels
+/// `from..from + out.len()` of the pair's row (masked loads and stores
+/// where a chunk covers it in part).
+/// The same operations on each sample as the two stored passes, so the same
+/// bits.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn guide_pair_products_avx512(
+    n: usize,
+    (fp, fq): (&[GuideRow<'_>], &[GuideRow<'_>]),
+    ends: &[usize],
+    mut lanes: [Option<ProductLane<'_>>; 2],
+) {
+    let k = ends.len();
+    assert!(n >= CHUNK_AVX512 && (1..=PRODUCTS_MAX).contains(&k), "{n} samples, {k} guides");
+    let channels = ends[k - 1];
+    assert!(channels <= PAIR_GUIDE_CHANNELS_MAX && fp.len() == channels && fq.len() == channels);
+    assert!(ends.windows(2).all(|e| e[0] < e[1]) && ends[0] > 0, "every guide has a channel");
+    for c in 0..channels {
+        assert!(fp[c].len() >= n && fq[c].len() >= n, "the channels' rows hold the pair's samples");
+    }
+    for lane in lanes.iter().flatten() {
+        let len = lane.out.len();
+        assert!(len > 0 && lane.from + len <= n, "a lane lies inside the pair's row");
+        assert!(lane.inv[..k].iter().all(|r| r.len() >= len), "the factors cover the lane");
+    }
+    // SAFETY: the caller's CPU supports AVX-512F.
+    unsafe {
+        match k {
+            1 => guide_pair_products::<1>(n, (fp, fq), ends, &mut lanes),
+            2 => guide_pair_products::<2>(n, (fp, fq), ends, &mut lanes),
+            3 => guide_pair_products::<3>(n, (fp, fq), ends, &mut lanes),
+            _ => guide_pair_products::<4>(n, (fp, fq), ends, &mut lanes),
+        }
+    }
+}
+
+/// [`guide_pair_products_avx512`] for `K` guides, on chunks of
+/// [`CHUNK_AVX512`] samples (four vectors: the per-chunk and per-channel
+/// integer work spread over four vectors' arithmetic), the last one
+/// overlapping its predecessor (the lanes' rows are outputs only).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn guide_pair_products<const K: usize>(
+    n: usize,
+    (fp, fq): (&[GuideRow<'_>], &[GuideRow<'_>]),
+    ends: &[usize],
+    lanes: &mut [Option<ProductLane<'_>>; 2],
+) {
+    use std::arch::x86_64::*;
+    const V: usize = CHUNK_AVX512 / 16;
+    // The bits `j` of a chunk from `i` whose sample `i + j` lies in `a..b`.
+    let below = |m: usize| if m >= 64 { u64::MAX } else { (1u64 << m) - 1 };
+    let in_lane = |(a, b): (usize, usize), i: usize| below(b.saturating_sub(i)) & !below(a.saturating_sub(i));
+    for ch in 0..chunk_count::<CHUNK_AVX512>(n) {
+        let i = chunk_start::<CHUNK_AVX512>(ch, n);
+        let mut s = [[_mm512_setzero_ps(); V]; K];
+        let mut c = 0;
+        for (g, sg) in s.iter_mut().enumerate() {
+            while c < ends[g] {
+                // SAFETY: `i + CHUNK_AVX512 <= n <= len` of both rows
+                // (asserted by the caller).
+                let (p, q) = unsafe { (fp[c].load_chunk::<V>(i), fq[c].load_chunk::<V>(i)) };
+                for v in 0..V {
+                    let d = _mm512_sub_ps(p[v], q[v]);
+                    sg[v] = _mm512_fmadd_ps(d, d, sg[v]);
+                }
+                c += 1;
+            }
+        }
+        for lane in lanes.iter_mut().flatten() {
+            let (a, b) = (lane.from, lane.from + lane.out.len());
+            let m = in_lane((a, b), i);
+            if m == 0 {
+                continue;
+            }
+            // Sample `i - a` of the lane's rows (`wrapping_`: it may lie
+            // before their start; the masked-off samples are not touched).
+            let at = i.wrapping_sub(a);
+            for v in 0..V {
+                let mask = (m >> (16 * v)) as u16;
+                let at = at.wrapping_add(16 * v);
+                let mut o = _mm512_setzero_ps();
+                for (g, sg) in s.iter().enumerate() {
+                    // SAFETY: the mask keeps the samples `0..out.len()` of
+                    // the factors' rows (asserted to hold them).
+                    let inv = unsafe { _mm512_maskz_loadu_ps(mask, lane.inv[g].as_ptr().wrapping_add(at)) };
+                    // `fold_min(o, t)`: `t` only when it is smaller
+                    // (`vminps` returns its second operand on equality or a NaN).
+                    o = _mm512_min_ps(_mm512_mul_ps(sg[v], inv), o);
+                }
+                // SAFETY: the mask keeps the samples `a..b` of the pair's
+                // row, `0..out.len()` of the lane's.
+                unsafe { _mm512_mask_storeu_ps(lane.out.as_mut_ptr().wrapping_add(at), mask, o) };
+            }
+        }
+    }
+}
+
 /// Sample `i` of the square sum `((0 + d_0^2) + d_1^2) + ...`, `d_c = fp_c - fq_c`.
 #[inline(always)]
 fn square_sum_at<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> f32 {
@@ -1006,6 +1188,92 @@ mod tests {
                 let (g, w): (Vec<u32>, Vec<u32>) =
                     (got.iter().map(|v| v.to_bits()).collect(), want.iter().map(|v| v.to_bits()).collect());
                 assert_eq!(g, w, "{name}, n = {n}");
+            }
+        }
+    }
+
+    /// The one-pass guide products give both lanes the bits of the stored
+    /// path (each guide's [`feature_square_sum`], then
+    /// [`fold_feature_products`] from 0): guides of 1 to 4 channels, `f32`
+    /// and half-float rows, lanes covering a row in full or in part (chunk
+    /// edges inside them), the factors negative as the weight's are, and
+    /// samples that give infinite or NaN terms and zeros of either sign,
+    /// where the minimum's operand order shows.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn guide_pair_products_match_the_stored_path() {
+        if !avx512_or_skip() {
+            return;
+        }
+        let mut next = mixed_values(0x1234_5677, 0.5, 5);
+        let mut special = 0u32;
+        let mut value = move || {
+            special = special.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+            match (special >> 16) % 41 {
+                0 => f32::INFINITY,
+                1 => 0.0,
+                2 => -0.0,
+                _ => half::f16::from_f32(next()).to_f32(),
+            }
+        };
+        let layouts: [&[usize]; 5] = [&[3, 3, 1], &[1], &[2, 4], &[1, 1, 1, 1], &[4, 3, 2, 1]];
+        for (t, layout) in layouts.iter().enumerate() {
+            for n in [64, 65, 100, 128, 129, 203] {
+                let channels: usize = layout.iter().sum();
+                let mut rows: Vec<Vec<f32>> = (0..2 * channels).map(|_| (0..n).map(|_| value()).collect()).collect();
+                // `inf - inf` in the first guide at a sample of every lane.
+                (rows[0][n - 7], rows[channels][n - 7]) = (f32::INFINITY, f32::INFINITY);
+                let halves: Vec<Vec<half::f16>> =
+                    rows.iter().map(|r| r.iter().map(|v| half::f16::from_f32(*v)).collect()).collect();
+                // Lanes: the whole row, and parts starting or ending inside a chunk.
+                let spans = [(0, n), (3, n - 5), (17, n), (0, n - 1), (n - 20, n)];
+                let (a, b) = (spans[t % spans.len()], spans[(t + 2) % spans.len()]);
+                let invs: Vec<Vec<f32>> = (0..2 * layout.len())
+                    .map(|j| (0..n).map(|i| if (i + j) % 13 == 0 { -0.0 } else { -(value().abs() + 0.5) }).collect())
+                    .collect();
+                // The stored path.
+                let mut sums = vec![vec![0.0f32; n]; layout.len()];
+                let mut c = 0;
+                for (g, &k) in layout.iter().enumerate() {
+                    let p: Vec<&[f32]> = (c..c + k).map(|i| &rows[i][..]).collect();
+                    let q: Vec<&[f32]> = (c..c + k).map(|i| &rows[channels + i][..]).collect();
+                    feature_square_sum_any(&mut sums[g], &p, &q);
+                    c += k;
+                }
+                // Infinite samples give infinite and NaN terms (`inf - inf`, `inf * 0`).
+                assert!(sums.iter().flatten().any(|v| v.is_nan()), "{layout:?}, n = {n}: no NaN square sum");
+                let want = |lane: usize, (x0, x1): (usize, usize)| {
+                    let mut out = vec![f32::NAN; x1 - x0];
+                    let s: Vec<&[f32]> = sums.iter().map(|r| &r[x0..x1]).collect();
+                    let inv: Vec<&[f32]> = (0..layout.len()).map(|g| &invs[lane * layout.len() + g][x0..x1]).collect();
+                    fold_feature_products::<CHUNK_AVX512>(&mut out, &s, &inv, true);
+                    out
+                };
+                let mut ends = vec![];
+                for k in layout.iter() {
+                    ends.push(ends.last().copied().unwrap_or(0) + k);
+                }
+                for half_rows in [false, true] {
+                    let row = |i: usize| if half_rows { GuideRow::Half(&halves[i]) } else { GuideRow::Full(&rows[i]) };
+                    let fp: Vec<GuideRow> = (0..channels).map(row).collect();
+                    let fq: Vec<GuideRow> = (channels..2 * channels).map(row).collect();
+                    let mut outs = [vec![f32::NAN; a.1 - a.0], vec![f32::NAN; b.1 - b.0]];
+                    let [oa, ob] = &mut outs;
+                    let lane = |l: usize, (x0, x1): (usize, usize), out| {
+                        let mut inv: [&[f32]; PRODUCTS_MAX] = [&[]; PRODUCTS_MAX];
+                        for (g, r) in inv.iter_mut().take(layout.len()).enumerate() {
+                            *r = &invs[l * layout.len() + g][x0..x1];
+                        }
+                        Some(ProductLane { from: x0, out, inv })
+                    };
+                    // SAFETY: AVX-512F was detected above.
+                    unsafe { guide_pair_products_avx512(n, (&fp, &fq), &ends, [lane(0, a, oa), lane(1, b, ob)]) };
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    let at = format!("layout {layout:?}, n = {n}, halves {half_rows}");
+                    assert_eq!(bits(&outs[0]), bits(&want(0, a)), "forward lane, {at}");
+                    assert_eq!(bits(&outs[1]), bits(&want(1, b)), "mirror lane, {at}");
+                    assert!(outs.iter().flatten().any(|v| *v < 0.0), "{at}: the terms are not all zero");
+                }
             }
         }
     }

@@ -16,7 +16,10 @@ use super::kernels::{
     log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
-use super::kernels::{feature_square_sum_half_avx2, feature_square_sum_half_avx512};
+use super::kernels::{
+    GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, feature_square_sum_half_avx2, feature_square_sum_half_avx512,
+    guide_pair_products_avx512,
+};
 use super::simd;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Tier;
@@ -1518,6 +1521,92 @@ fn pair_feature_row<const W: usize, const AVX512: bool, const AVX2: bool>(
         (Some(a), None) | (None, Some(a)) => a,
         (None, None) => return,
     };
+    // The lanes are handed back when the one-pass kernel does not apply.
+    #[cfg(target_arch = "x86_64")]
+    let (fwd, mir) = match AVX512 && x1 - x0 >= CHUNK_AVX512 as i64 {
+        true => match fused_guide_products(features, (dx, dy), y, (x0, (x1 - x0) as usize), fwd, mir) {
+            Some(lanes) => lanes,
+            None => return,
+        },
+        false => (fwd, mir),
+    };
+    pair_feature_row_stored::<W, AVX512, AVX2>(features, (dx, dy), y, (x0, x1), fwd, mir, square_sums);
+}
+
+/// [`pair_feature_row`] on the AVX-512 tier in one pass
+/// ([`guide_pair_products_avx512`]) when no guide has a variance (at most
+/// [`PRODUCTS_MAX`] guides of at most [`PAIR_GUIDE_CHANNELS_MAX`] channels
+/// in all), each guide read as half floats when it has them: the same bits
+/// as the stored square sums. Else hands the lanes back. `w >=
+/// CHUNK_AVX512` samples from column `x0`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn fused_guide_products<'r>(
+    features: &[GuideFeature],
+    (dx, dy): (i64, i64),
+    y: i64,
+    (x0, w): (i64, usize),
+    fwd: Option<(Rect, &'r mut [f32])>,
+    mir: Option<(Rect, &'r mut [f32])>,
+) -> Option<(Option<(Rect, &'r mut [f32])>, Option<(Rect, &'r mut [f32])>)> {
+    let k = features.len();
+    let channels: usize = features.iter().map(|f| f.values.len()).sum();
+    let fits = (1..=PRODUCTS_MAX).contains(&k)
+        && channels <= PAIR_GUIDE_CHANNELS_MAX
+        && features.iter().all(|f| f.variance.is_none());
+    if !fits {
+        return Some((fwd, mir));
+    }
+    let x1 = x0 + w as i64;
+    // Each channel's rows at `p` and at `p + n`, guide by guide.
+    let mut ends = [0usize; PRODUCTS_MAX];
+    let none = GuideRow::Full(&[]);
+    let (mut fp, mut fq) = ([none; PAIR_GUIDE_CHANNELS_MAX], [none; PAIR_GUIDE_CHANNELS_MAX]);
+    let mut c = 0;
+    for (g, feat) in features.iter().enumerate() {
+        for (ch, plane) in feat.values.iter().enumerate() {
+            (fp[c], fq[c]) = match &feat.half {
+                Some(half) => {
+                    let h = &half[ch];
+                    (GuideRow::Half(h.row(y, x0, x1)), GuideRow::Half(h.row(y + dy, x0 + dx, x1 + dx)))
+                }
+                None => (GuideRow::Full(plane.row(y, x0, x1)), GuideRow::Full(plane.row(y + dy, x0 + dx, x1 + dx))),
+            };
+            c += 1;
+        }
+        ends[g] = c;
+    }
+    // A lane's pixels `p`: its own columns (forward), or its columns minus
+    // `dx` (mirror, whose pixels are `p + n`, in row `y + dy`).
+    let lane = |lane: Option<(Rect, &'r mut [f32])>, ly: i64, shift: i64| {
+        lane.map(|(r, row)| {
+            let mut inv: [&[f32]; PRODUCTS_MAX] = [&[]; PRODUCTS_MAX];
+            for (i, feat) in inv.iter_mut().zip(features) {
+                *i = feat.inv_den[0].row(ly, r.x0, r.x1);
+            }
+            ProductLane { from: (r.x0 - shift - x0) as usize, out: &mut row[..r.width()], inv }
+        })
+    };
+    let lanes = [lane(fwd, y, 0), lane(mir, y + dy, dx)];
+    // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper, which
+    // runs only on CPUs with avx512f.
+    unsafe { guide_pair_products_avx512(w, (&fp[..c], &fq[..c]), &ends[..k], lanes) };
+    None
+}
+
+/// [`pair_feature_row`] through stored square sums, one row per guide.
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn pair_feature_row_stored<const W: usize, const AVX512: bool, const AVX2: bool>(
+    features: &[GuideFeature],
+    (dx, dy): (i64, i64),
+    y: i64,
+    (x0, x1): (i64, i64),
+    fwd: Option<(Rect, &mut [f32])>,
+    mir: Option<(Rect, &mut [f32])>,
+    square_sums: &mut [f32],
+) {
     let w = (x1 - x0) as usize;
     for (j, feat) in features.iter().enumerate().filter(|(_, f)| f.variance.is_none()) {
         let out = &mut square_sums[j * w..(j + 1) * w];
