@@ -2,9 +2,11 @@
 # Where the block kernel's time goes (docs/performance.md): `perf record` of
 # one `examples/timing` run, each sample inside the kernel's tier wrapper
 # (`filter_block_avx512`, `filter_block_avx2`) attributed to the innermost
-# kernel function it was inlined from (`addr2line -i`), as shares of the
-# kernel's samples. The timings' noise does not matter here: shares, not
-# seconds.
+# kernel function it was inlined from (`addr2line -i`), and each sample in
+# a kernel function the wrapper calls out of line (an AVX2 or AVX-512
+# `target_feature` function of `nldenoise::filter`) to that function, as
+# shares of the kernel's samples. The timings' noise does not matter here:
+# shares, not seconds.
 #
 #   bash benches/kernel_profile.sh [MODE] [WIDTH] [HEIGHT] [TIMING_BINARY]
 #
@@ -26,7 +28,7 @@ trap 'rm -rf "$out"' EXIT
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
 perf record -q -e cpu-clock -F 4000 -o "$out/perf.data" "$BIN" "$MODE" "$W" "$H" 1 10 1 >/dev/null 2>&1
 perf script -i "$out/perf.data" -F ip,sym,symoff 2>/dev/null \
-  | awk '$2 ~ /filter_block_avx(2|512)[+]0x/ { split($2, a, "[+]0x"); print a[1], a[2] }' \
+  | awk '$2 ~ /^nldenoise::filter::.*avx(2|512)[+]0x/ { split($2, a, "[+]0x"); print a[1], a[2] }' \
   | sort | uniq -c > "$out/offsets"
 python3 - "$BIN" "$out/offsets" "${LINES:-0}" "${FOOTPRINT:-0}" <<'PY'
 import collections, subprocess, sys
@@ -37,10 +39,15 @@ for line in subprocess.run(["nm", "-C", binary], capture_output=True, text=True)
     parts = line.split(maxsplit=2)
     if len(parts) == 3 and parts[2].startswith("nldenoise::filter::nlmeans::filter_block_avx"):
         symbols[parts[2]] = int(parts[0], 16)
-rows = []
+rows, own = [], collections.Counter()
 for line in open(offsets):
     count, sym, off = line.split()
-    rows.append((int(count), sym, hex(symbols[sym] + int(off, 16))))
+    if sym in symbols:
+        rows.append((int(count), sym, hex(symbols[sym] + int(off, 16))))
+    else:
+        # A kernel the wrapper calls out of line (a `target_feature`
+        # function not inlined): its samples under its own name.
+        own[sym.split("::")[-1] + " (out of line)"] += int(count)
 if not rows:
     sys.exit("no samples in the kernel")
 print(f"tier wrapper: {', '.join(sorted({s.split('::')[-1] for _, s, _ in rows}))}")
@@ -59,7 +66,7 @@ frames.append(current)
 ours = ("kernels.rs", "column_sums.rs", "nlmeans.rs")
 # Helpers shared by several kernels: their samples go to the caller.
 helpers = ("rows_sum", "chunk_start", "chunk_count", "chunk", "chunk_mut", "cut", "shifted", "deref", "deref_mut")
-shares, total = collections.Counter(), 0
+shares, total = own, sum(own.values())
 for (count, _, _), chain in zip(rows, frames):
     total += count
     key = "(set-up in the block kernel)"
@@ -82,10 +89,10 @@ if sys.argv[4] == "1":
     lines = collections.Counter()
     for count, _, address in rows:
         lines[int(address, 16) // 64] += count
-    held, marks = 0, [0.5, 0.9, 0.99]
+    held, marks, wrapper = 0, [0.5, 0.9, 0.99], sum(c for c, _, _ in rows)
     for n, (_, count) in enumerate(lines.most_common(), 1):
         held += count
-        while marks and held >= marks[0] * total:
+        while marks and held >= marks[0] * wrapper:
             print(f"hot code: {100 * marks.pop(0):.0f} % of the samples in {n} lines of 64 bytes ({n * 64 / 1024:.1f} KiB)")
 for key, count in shares.most_common(30):
     print(f"{100 * count / total:6.2f} %  {key}")
