@@ -1503,7 +1503,8 @@ fn fold_feature_rows<const W: usize, const C: usize>(
 /// bits either way) that each lane multiplies by its own pixel's
 /// denominator; a guide with variance (whose numerators differ) gives each
 /// lane's terms as [`fold_feature_row`] does. `square_sums` holds one row
-/// per guide.
+/// per guide. On the AVX-512 tier, guides without variance skip the stored
+/// row: [`fused_guide_products`], the same bits.
 #[inline(always)]
 fn pair_feature_row<const W: usize, const AVX512: bool, const AVX2: bool>(
     features: &[GuideFeature],
@@ -1554,7 +1555,7 @@ fn fused_guide_products<'r>(
     let channels: usize = features.iter().map(|f| f.values.len()).sum();
     let fits = (1..=PRODUCTS_MAX).contains(&k)
         && channels <= PAIR_GUIDE_CHANNELS_MAX
-        && features.iter().all(|f| f.variance.is_none());
+        && features.iter().all(|f| f.variance.is_none() && !f.values.is_empty());
     if !fits {
         return Some((fwd, mir));
     }
