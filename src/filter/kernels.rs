@@ -60,21 +60,102 @@ pub fn exp2_weight_scaled_lanes<const W: usize>(t: [f32; W], e: i32) -> [f32; W]
     let t = lanes(t, |t| if t < 0.0 { t } else { 0.0 });
     let tr = lanes(t, |t| t + ROUND);
     let f = lanes2(t, tr, |t, tr| t - (tr - ROUND));
-    // Constant term exactly 1: integer `t` give exact powers of two.
-    let mut p = lanes(f, |f| 1.326_470_2e-3_f32.mul_add(f, 9.671_505e-3));
-    p = lanes2(p, f, |p, f| p.mul_add(f, 5.550_733_6e-2));
-    p = lanes2(p, f, |p, f| p.mul_add(f, 2.402_224_2e-1));
-    // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
-    #[allow(clippy::approx_constant)]
-    let c1 = 0.693_147_f32;
-    p = lanes2(p, f, |p, f| p.mul_add(f, c1));
-    p = lanes2(p, f, |p, f| p.mul_add(f, 1.0));
+    let c = EXP2_POLY;
+    let mut p = lanes(f, |f| c[0].mul_add(f, c[1]));
+    for &ck in &c[2..] {
+        p = lanes2(p, f, |p, f| p.mul_add(f, ck));
+    }
     lanes2(p, tr, |p, tr| {
         // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it
         // with an integer subtraction (a float-to-int cast would be scalarised).
         let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
         p * f32::from_bits(((ni + 127 + e) as u32) << 23)
     })
+}
+
+/// The coefficients of [`exp2_weight`]'s polynomial `2^f ~ p(f)`, highest
+/// degree first (Horner's rule). The constant term is exactly 1, so integer
+/// `t` give exact powers of two.
+// Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
+#[allow(clippy::approx_constant)]
+const EXP2_POLY: [f32; 6] = [1.326_470_2e-3, 9.671_505e-3, 5.550_733_6e-2, 2.402_224_2e-1, 0.693_147, 1.0];
+
+/// The weights of a row on the AVX-512 tier: `dst[i]` is
+/// [`exp2_weight_scaled_lanes`] (times `2^e`) of `t = sums[i] as f32 * inner`,
+/// with `GUIDED` of `if tf[i] < t { tf[i] } else { t }`, with the same bits
+/// and four operations fewer per sample:
+///
+/// * the power of two `2^n` is applied by `vscalefps` from `n` as a float
+///   (`tr - 1.5 * 2^23`, which the reduction computes anyway) instead of
+///   an integer subtraction, a shift and a multiply: `vscalefps` rounds the
+///   exact product `p 2^n` once, as the multiply does;
+/// * `2^e` is folded into the polynomial's coefficients: each of its fused
+///   multiply-adds then gives its value times `2^e` exactly (no value
+///   comes near the ends of the exponent range for `e` in `[0, 127]`);
+/// * with `GUIDED`, no clamp at 0: the caller's `tf` are never NaN and never
+///   above 0 (they are minima folded from 0), so `t` is at most `+0`, and a
+///   `-0` left unclamped gives `f = -0` where the clamp gave `+0`, which the
+///   polynomial's fused multiply-adds (`p * f + c`, `c != 0`) turn into the
+///   same bits.
+///
+/// `n = dst.len()` samples, any `n` (masked loads and stores at the end).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn weights_avx512<const GUIDED: bool>(sums: &[i32], tf: &[f32], dst: &mut [f32], inner: f32, e: i32) {
+    use std::arch::x86_64::*;
+    const V: usize = 4;
+    const ROUND: f32 = 12_582_912.0;
+    let n = dst.len();
+    assert!(sums.len() >= n && (!GUIDED || tf.len() >= n), "a sum (and a guide) per weight");
+    assert!((0..=127).contains(&e), "the weights' scale 2^e");
+    let scale = f32::from_bits(((127 + e) as u32) << 23);
+    let c = EXP2_POLY.map(|c| _mm512_set1_ps(c * scale));
+    let (inner, round, floor) = (_mm512_set1_ps(inner), _mm512_set1_ps(ROUND), _mm512_set1_ps(-126.0));
+    let mut i = 0;
+    while i < n {
+        let masks: [__mmask16; V] = std::array::from_fn(|v| {
+            let left = n.saturating_sub(i + 16 * v);
+            if left >= 16 { 0xFFFF } else { ((1u32 << left) - 1) as u16 }
+        });
+        let mut t = [_mm512_setzero_ps(); V];
+        for v in 0..V {
+            let at = i + 16 * v;
+            // SAFETY: the masks keep the samples below `n`, which `sums`,
+            // `tf` (with `GUIDED`) and `dst` hold (asserted).
+            unsafe {
+                let s = _mm512_maskz_loadu_epi32(masks[v], sums.as_ptr().wrapping_add(at));
+                t[v] = _mm512_mul_ps(_mm512_cvtepi32_ps(s), inner);
+                if GUIDED {
+                    // `if g < t { g } else { t }`: `vminps` returns its second
+                    // operand unless the first is smaller.
+                    t[v] = _mm512_min_ps(_mm512_maskz_loadu_ps(masks[v], tf.as_ptr().wrapping_add(at)), t[v]);
+                }
+            }
+            // `if t > -126 { t } else { -126 }`, NaN to -126.
+            t[v] = _mm512_max_ps(t[v], floor);
+            if !GUIDED {
+                t[v] = _mm512_min_ps(t[v], _mm512_setzero_ps());
+            }
+        }
+        let nf = t.map(|t| _mm512_sub_ps(_mm512_add_ps(t, round), round));
+        let f: [__m512; V] = std::array::from_fn(|v| _mm512_sub_ps(t[v], nf[v]));
+        let mut p = f.map(|f| _mm512_fmadd_ps(c[0], f, c[1]));
+        for ck in &c[2..] {
+            for v in 0..V {
+                p[v] = _mm512_fmadd_ps(p[v], f[v], *ck);
+            }
+        }
+        for v in 0..V {
+            let w = _mm512_scalef_ps(p[v], nf[v]);
+            // SAFETY: as the loads.
+            unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr().wrapping_add(i + 16 * v), masks[v], w) };
+        }
+        i += 16 * V;
+    }
 }
 
 /// `f` of every sample of a chunk.
@@ -1361,6 +1442,67 @@ mod tests {
                 assert_eq!(exp2_weight_scaled_lanes([*t], e)[0].to_bits(), want.to_bits(), "t = {t:e}, e = {e}");
             }
         }
+    }
+
+    /// The AVX-512 weights kernel gives, sample by sample, the bits of the
+    /// lanes form that the other tiers run (`nlmeans::weight_row`), with and
+    /// without guides, for every scale `2^e` the boxes use, rows of any
+    /// length (masked ends), arguments over the clamps' range and beyond on
+    /// both sides, and guide arguments at `+0`, `-0`, `-inf` and in between.
+    #[test]
+    fn weights_avx512_match_the_lanes_form() {
+        if !avx512_or_skip() {
+            return;
+        }
+        let mut next = mixed_values(0x0bad_cafe, 0.7, 2);
+        // Window sums from 0 to about +-1e8, and the arguments' scale as the
+        // filter's (`-log2(e) / channels / 2^s` over the patch's count).
+        let sums: Vec<i32> = (0..4096)
+            .map(|i| match i % 53 {
+                0 => 0,
+                1 => i32::MAX / 64,
+                _ => (next() * 1.5e8 / (1 + i % 7 * 1000) as f32) as i32,
+            })
+            .collect();
+        let guides: Vec<f32> = (0..4096)
+            .map(|i| match i % 29 {
+                0 => 0.0,
+                1 => -0.0,
+                2 => f32::NEG_INFINITY,
+                _ => -(next().abs() * 10f32.powi(i % 4)),
+            })
+            .collect();
+        let mut checked = [0usize; 2];
+        for inner in [-1.443e-5f32, -3.1e-6, -0.47, 2.0e-6] {
+            for e in [0, 1, 13, 40, 127] {
+                for n in [1, 15, 16, 17, 63, 64, 65, 100, 203, 4000] {
+                    for guided in [false, true] {
+                        let (s, g) = (&sums[..n], &guides[96..96 + n]);
+                        let mut got = vec![f32::NAN; n + 3];
+                        // SAFETY: avx512f was detected above.
+                        unsafe {
+                            if guided {
+                                weights_avx512::<true>(s, g, &mut got[..n], inner, e);
+                            } else {
+                                weights_avx512::<false>(s, &[], &mut got[..n], inner, e);
+                            }
+                        }
+                        for i in 0..n {
+                            let t = s[i] as f32 * inner;
+                            let t = if guided && g[i] < t { g[i] } else { t };
+                            let want = exp2_weight_scaled_lanes([t], e)[0];
+                            assert_eq!(got[i].to_bits(), want.to_bits(), "t = {t:e}, e = {e}, guided {guided}");
+                            checked[guided as usize] += 1;
+                        }
+                        assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the row");
+                    }
+                }
+            }
+        }
+        // Both sides of the clamps were reached.
+        let ts = sums.iter().map(|s| *s as f32 * -3.1e-6);
+        assert!(ts.clone().any(|t| t > 0.5) && ts.clone().any(|t| t < -130.0), "arguments beyond both clamps");
+        assert!(checked.iter().all(|c| *c > 90_000), "{checked:?}");
     }
 
     /// The array kernel (channel counts 1 to 4, with and without variance,

@@ -18,7 +18,7 @@ use super::kernels::{
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
     GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, feature_square_sum_half_avx2, feature_square_sum_half_avx512,
-    guide_pair_products_avx512,
+    guide_pair_products_avx512, weights_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -588,9 +588,9 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         let at = (lane.w.x0, lane.valid, f, ny, kd, w_exp);
                         let guide: &[f32] = if features.is_empty() { &[] } else { &tf[si * GROUP_MAX + g][..ww] };
                         if features.is_empty() {
-                            weight_row::<W, false>(sums, wt, guide, at);
+                            weight_row::<W, false, AVX512>(sums, wt, guide, at);
                         } else {
-                            weight_row::<W, true>(sums, wt, guide, at);
+                            weight_row::<W, true, AVX512>(sums, wt, guide, at);
                         }
                         let h = (&mut hrow[..lane.acc.width()], &mut psum[..]);
                         let (valid, (x0, acc_x0)) = (lane.valid, (lane.w.x0, lane.acc.x0));
@@ -1056,7 +1056,7 @@ fn pair_taps_sum<const W: usize, const F: usize, const T: usize>(src: &[f32], pa
 /// times `2^e`, exactly (`e`: the weights' box's `s`, see
 /// [`kernels::exp2_weight_scaled_lanes`](super::kernels::exp2_weight_scaled_lanes)).
 #[inline(always)]
-fn weight_row<const W: usize, const GUIDED: bool>(
+fn weight_row<const W: usize, const GUIDED: bool, const AVX512: bool>(
     sums: &[i32],
     dst: &mut [f32],
     tf: &[f32],
@@ -1064,12 +1064,23 @@ fn weight_row<const W: usize, const GUIDED: bool>(
 ) {
     let n = dst.len();
     let sums = &sums[..n];
+    // The guides' arguments are minima folded from 0: never NaN, never
+    // above 0 (`kernels::weights_avx512` relies on it).
+    debug_assert!(!GUIDED || tf[..n].iter().all(|g| *g <= 0.0), "a guide argument above 0 or NaN");
     let weight = |t: f32, tf: f32| exp2_weight_scaled_lanes([if GUIDED && tf < t { tf } else { t }], e)[0];
     let guide = |i: usize| if GUIDED { tf[i] } else { 0.0 };
     let (unclipped, clipped) = window_columns(x0, n, clip, f);
     let inner = k / ((2 * f + 1) as f32 * ny);
     let (u0, len) = (unclipped.start, unclipped.len());
-    if len < W {
+    if AVX512 {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let tf = if GUIDED { &tf[unclipped.clone()] } else { &[][..] };
+            // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
+            // which runs only on CPUs with avx512f.
+            unsafe { weights_avx512::<GUIDED>(&sums[unclipped.clone()], tf, &mut dst[unclipped], inner, e) };
+        }
+    } else if len < W {
         for i in unclipped {
             dst[i] = weight(sums[i] as f32 * inner, guide(i));
         }
