@@ -113,48 +113,90 @@ pub unsafe fn weights_avx512<const GUIDED: bool>(sums: &[i32], tf: &[f32], dst: 
     assert!(sums.len() >= n && (!GUIDED || tf.len() >= n), "a sum (and a guide) per weight");
     assert!((0..=127).contains(&e), "the weights' scale 2^e");
     let scale = f32::from_bits(((127 + e) as u32) << 23);
-    let c = EXP2_POLY.map(|c| _mm512_set1_ps(c * scale));
+    let mut c = [_mm512_setzero_ps(); 6];
+    for (v, x) in c.iter_mut().zip(EXP2_POLY) {
+        *v = _mm512_set1_ps(x * scale);
+    }
     let (inner, round, floor) = (_mm512_set1_ps(inner), _mm512_set1_ps(ROUND), _mm512_set1_ps(-126.0));
+    let consts = WeightConsts { c, inner, round, floor };
+    // Whole chunks unmasked (constant masks: plain loads and stores), then
+    // the last one masked.
     let mut i = 0;
-    while i < n {
+    while i + 16 * V <= n {
+        // SAFETY: samples `i..i + 64` lie below `n`; avx512f (see above).
+        unsafe { weights_chunk::<GUIDED>((sums, tf, dst), i, [0xFFFF; V], &consts) };
+        i += 16 * V;
+    }
+    if i < n {
         let masks: [__mmask16; V] = std::array::from_fn(|v| {
             let left = n.saturating_sub(i + 16 * v);
             if left >= 16 { 0xFFFF } else { ((1u32 << left) - 1) as u16 }
         });
+        // SAFETY: the masks keep the samples below `n`; avx512f (see above).
+        unsafe { weights_chunk::<GUIDED>((sums, tf, dst), i, masks, &consts) };
+    }
+}
+
+/// [`weights_avx512`]'s constants, as vectors.
+#[cfg(target_arch = "x86_64")]
+struct WeightConsts {
+    c: [std::arch::x86_64::__m512; 6],
+    inner: std::arch::x86_64::__m512,
+    round: std::arch::x86_64::__m512,
+    floor: std::arch::x86_64::__m512,
+}
+
+/// [`weights_avx512`] on the four vectors from `i`, vector `v` on the
+/// samples its mask `masks[v]` keeps.
+///
+/// # Safety
+/// The CPU must support AVX-512F; the masked samples must lie inside
+/// `sums`, `dst` and (with `GUIDED`) `tf`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn weights_chunk<const GUIDED: bool>(
+    (sums, tf, dst): (&[i32], &[f32], &mut [f32]),
+    i: usize,
+    masks: [std::arch::x86_64::__mmask16; 4],
+    k: &WeightConsts,
+) {
+    use std::arch::x86_64::*;
+    const V: usize = 4;
+    // SAFETY (the whole body): the caller's CPU supports AVX-512F and the
+    // masks keep samples inside the rows.
+    unsafe {
         let mut t = [_mm512_setzero_ps(); V];
         for v in 0..V {
             let at = i + 16 * v;
-            // SAFETY: the masks keep the samples below `n`, which `sums`,
-            // `tf` (with `GUIDED`) and `dst` hold (asserted).
-            unsafe {
-                let s = _mm512_maskz_loadu_epi32(masks[v], sums.as_ptr().wrapping_add(at));
-                t[v] = _mm512_mul_ps(_mm512_cvtepi32_ps(s), inner);
-                if GUIDED {
-                    // `if g < t { g } else { t }`: `vminps` returns its second
-                    // operand unless the first is smaller.
-                    t[v] = _mm512_min_ps(_mm512_maskz_loadu_ps(masks[v], tf.as_ptr().wrapping_add(at)), t[v]);
-                }
+            let s = _mm512_maskz_loadu_epi32(masks[v], sums.as_ptr().wrapping_add(at));
+            t[v] = _mm512_mul_ps(_mm512_cvtepi32_ps(s), k.inner);
+            if GUIDED {
+                // `if g < t { g } else { t }`: `vminps` returns its second
+                // operand unless the first is smaller.
+                t[v] = _mm512_min_ps(_mm512_maskz_loadu_ps(masks[v], tf.as_ptr().wrapping_add(at)), t[v]);
             }
             // `if t > -126 { t } else { -126 }`, NaN to -126.
-            t[v] = _mm512_max_ps(t[v], floor);
+            t[v] = _mm512_max_ps(t[v], k.floor);
             if !GUIDED {
                 t[v] = _mm512_min_ps(t[v], _mm512_setzero_ps());
             }
         }
-        let nf = t.map(|t| _mm512_sub_ps(_mm512_add_ps(t, round), round));
-        let f: [__m512; V] = std::array::from_fn(|v| _mm512_sub_ps(t[v], nf[v]));
-        let mut p = f.map(|f| _mm512_fmadd_ps(c[0], f, c[1]));
-        for ck in &c[2..] {
+        // Plain loops, not `map`: LLVM left `map` on vectors out of line.
+        let (mut nf, mut f, mut p) = ([_mm512_setzero_ps(); V], [_mm512_setzero_ps(); V], [_mm512_setzero_ps(); V]);
+        for v in 0..V {
+            nf[v] = _mm512_sub_ps(_mm512_add_ps(t[v], k.round), k.round);
+            f[v] = _mm512_sub_ps(t[v], nf[v]);
+            p[v] = _mm512_fmadd_ps(k.c[0], f[v], k.c[1]);
+        }
+        for ck in &k.c[2..] {
             for v in 0..V {
                 p[v] = _mm512_fmadd_ps(p[v], f[v], *ck);
             }
         }
         for v in 0..V {
             let w = _mm512_scalef_ps(p[v], nf[v]);
-            // SAFETY: as the loads.
-            unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr().wrapping_add(i + 16 * v), masks[v], w) };
+            _mm512_mask_storeu_ps(dst.as_mut_ptr().wrapping_add(i + 16 * v), masks[v], w);
         }
-        i += 16 * V;
     }
 }
 
