@@ -7,8 +7,8 @@
 //! wider tiers only put more pixels in a register, and the AVX-512 tier walks
 //! its rows in chunks of `kernels::CHUNK_AVX512` samples instead of
 //! `kernels::CHUNK`, which changes which samples one loop iteration computes,
-//! never their operations. Three kernels are written for the AVX-512 tier,
-//! each computing the same expression of the same samples:
+//! never their operations. Four kernels are written for the AVX-512 tier,
+//! each computing the same bits from the same samples:
 //! `kernels::taps7_push_avx512` (the horizontal window sums for `f = 3`,
 //! pushed into a lane's box as they are formed) forms the shifted operands
 //! in registers instead of loading them,
@@ -17,7 +17,11 @@
 //! `kernels::feature_square_sum_half_avx2` does, 8 at a time), and
 //! `kernels::guide_pair_products_avx512` gives both lanes of a pair their
 //! guides' weight argument in one pass (the square sums kept in registers,
-//! masked loads and stores at the lanes' edges). The kernel's
+//! masked loads and stores at the lanes' edges), and
+//! `kernels::weights_avx512` computes a row's weights with four operations
+//! fewer per sample than the portable form (`vscalefps` for the power of
+//! two, whose single rounding is the multiply's; the box's scale folded
+//! into the polynomial's coefficients, exact). The kernel's
 //! fused multiply-adds are written as `f32::mul_add`, one correctly rounded
 //! operation on every tier: the AVX2 and AVX-512 tiers are compiled with
 //! `fma` (and require it), the portable tier calls the target's fused
