@@ -18,7 +18,7 @@
 //! `kernels::guide_pair_products_avx512` gives both lanes of a pair their
 //! guides' weight argument in one pass (the square sums kept in registers,
 //! masked loads and stores at the lanes' edges), and
-//! `kernels::weights_avx512` computes a row's weights with four operations
+//! `kernels::weights_avx512` computes a row's weights with three or four operations
 //! fewer per sample than the portable form (`vscalefps` for the power of
 //! two, whose single rounding is the multiply's; the box's scale folded
 //! into the polynomial's coefficients, exact). The kernel's
