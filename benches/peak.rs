@@ -22,6 +22,10 @@
 //! - `distance_recip_div`: the colour distance's per-channel arithmetic over
 //!   rows in L1 (one thread), its reciprocal as `kernels::recip` or as an
 //!   IEEE division; throughput in pixel-channels per second.
+//! - `weights_row`: a row of guided weights over rows in L1 (one thread),
+//!   in the lanes form the portable and AVX2 tiers run or by
+//!   `kernels::weights_avx512` (the same bits); throughput in weights per
+//!   second.
 //!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
@@ -198,6 +202,53 @@ fn distance_div_avx512(reps: usize) -> f32 {
     distance_rows::<true>(reps)
 }
 
+/// A row of weights from window sums and guide arguments, over rows in L1:
+/// `nlmeans::weight_row`'s whole windows, as the portable and AVX2 tiers
+/// compute them (`kernels::exp2_weight_scaled_lanes` on 64-sample chunks,
+/// with `LANES`) or as the AVX-512 tier does (`kernels::weights_avx512`):
+/// the same bits, 17 and 13 operations per weight as written.
+#[inline(always)]
+fn weight_rows<const LANES: bool>(reps: usize) -> f32 {
+    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight_scaled_lanes};
+    let sums: Vec<i32> = (0..MIX_ROW).map(|i| ((i * 7919) % 400_000) as i32 - 20_000).collect();
+    let tf: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 83) as f32) * 0.7).collect();
+    let (inner, e) = (-1.2e-4f32, 20);
+    let mut out = vec![0.0f32; MIX_ROW];
+    for _ in 0..reps {
+        let (sums, tf) = (black_box(&sums[..]), black_box(&tf[..]));
+        if LANES {
+            for ((o, s), g) in out.chunks_exact_mut(W).zip(sums.chunks_exact(W)).zip(tf.chunks_exact(W)) {
+                let mut t = [0.0f32; W];
+                for k in 0..W {
+                    let x = s[k] as f32 * inner;
+                    t[k] = if g[k] < x { g[k] } else { x };
+                }
+                o.copy_from_slice(&exp2_weight_scaled_lanes(t, e));
+            }
+        } else {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: called only from `weights_kernel_avx512`, whose CPU has AVX-512F.
+            unsafe {
+                nldenoise::filter::kernels::weights_avx512::<true>(sums, tf, &mut out, inner, e)
+            };
+        }
+        black_box(&mut out);
+    }
+    out.iter().sum()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn weights_lanes_avx512(reps: usize) -> f32 {
+    weight_rows::<true>(reps)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+fn weights_kernel_avx512(reps: usize) -> f32 {
+    weight_rows::<false>(reps)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 fn mix_avx512(reps: usize) -> f32 {
@@ -310,6 +361,24 @@ fn bench(c: &mut Criterion) {
             ("avx512_16_recip", |n| unsafe { distance_recip_avx512(n) }),
             // SAFETY: as above.
             ("avx512_16_div", |n| unsafe { distance_div_avx512(n) }),
+        ];
+        for (name, f) in variants {
+            g.bench_function(name, |b| b.iter(|| on_threads(1, f, MIX_REPS)));
+        }
+        g.finish();
+    }
+    // Weights per second: the lanes form against `kernels::weights_avx512`
+    // (the same bits), rows in L1, one thread.
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("fma") && std::is_x86_feature_detected!("avx512f") {
+        let mut g = c.benchmark_group("weights_row");
+        g.sample_size(10);
+        g.throughput(Throughput::Elements((MIX_ROW * MIX_REPS) as u64));
+        let variants: [(&str, Chains); 2] = [
+            // SAFETY: called only when the CPU has AVX-512F and FMA.
+            ("avx512_16_lanes_form", |n| unsafe { weights_lanes_avx512(n) }),
+            // SAFETY: as above.
+            ("avx512_16_weights_avx512", |n| unsafe { weights_kernel_avx512(n) }),
         ];
         for (name, f) in variants {
             g.bench_function(name, |b| b.iter(|| on_threads(1, f, MIX_REPS)));
