@@ -111,23 +111,16 @@ const EXP2_POLY: [f32; 6] = [1.326_470_2e-3, 9.671_505e-3, 5.550_733_6e-2, 2.402
 pub unsafe fn weights_avx512<const GUIDED: bool>(sums: &[i32], tf: &[f32], dst: &mut [f32], inner: f32, e: i32) {
     use std::arch::x86_64::*;
     const V: usize = 4;
-    const ROUND: f32 = 12_582_912.0;
     let n = dst.len();
     assert!(sums.len() >= n && (!GUIDED || tf.len() >= n), "a sum (and a guide) per weight");
     assert!((0..=127).contains(&e), "the weights' scale 2^e");
-    let scale = f32::from_bits(((127 + e) as u32) << 23);
-    let mut c = [_mm512_setzero_ps(); 6];
-    for (v, x) in c.iter_mut().zip(EXP2_POLY) {
-        *v = _mm512_set1_ps(x * scale);
-    }
-    let (inner, round, floor) = (_mm512_set1_ps(inner), _mm512_set1_ps(ROUND), _mm512_set1_ps(-126.0));
-    let consts = WeightConsts { c, inner, round, floor };
+    let consts = WeightConsts::new(inner, e);
     // Whole chunks unmasked (constant masks: plain loads and stores), then
     // the last one masked.
     let mut i = 0;
     while i + 16 * V <= n {
         // SAFETY: samples `i..i + 64` lie below `n`; avx512f (see above).
-        unsafe { weights_chunk::<GUIDED>((sums, tf, dst), i, [0xFFFF; V], &consts) };
+        unsafe { weights_chunk::<GUIDED, V>((sums, tf, dst), None, i, [0xFFFF; V], &consts) };
         i += 16 * V;
     }
     if i < n {
@@ -136,8 +129,35 @@ pub unsafe fn weights_avx512<const GUIDED: bool>(sums: &[i32], tf: &[f32], dst: 
             if left >= 16 { 0xFFFF } else { ((1u32 << left) - 1) as u16 }
         });
         // SAFETY: the masks keep the samples below `n`; avx512f (see above).
-        unsafe { weights_chunk::<GUIDED>((sums, tf, dst), i, masks, &consts) };
+        unsafe { weights_chunk::<GUIDED, V>((sums, tf, dst), None, i, masks, &consts) };
     }
+}
+
+/// [`weights_avx512`] of up to 16 samples, each with its own factor:
+/// `t = sums[i] as f32 * factors[i]` (the columns whose windows the frame
+/// clips, each scaled by its own count), the same bits as the lanes form
+/// on each sample.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn weights_factors_avx512<const GUIDED: bool>(
+    sums: &[i32],
+    tf: &[f32],
+    dst: &mut [f32],
+    factors: &[f32],
+    e: i32,
+) {
+    use std::arch::x86_64::*;
+    let n = dst.len();
+    assert!(n <= 16 && sums.len() >= n && factors.len() >= n && (!GUIDED || tf.len() >= n), "up to 16 samples");
+    assert!((0..=127).contains(&e), "the weights' scale 2^e");
+    let consts = WeightConsts::new(0.0, e);
+    let mask = ((1u32 << n) - 1) as __mmask16;
+    // SAFETY: the mask keeps the samples below `n`; avx512f (see above).
+    unsafe { weights_chunk::<GUIDED, 1>((sums, tf, dst), Some(factors), 0, [mask], &consts) };
 }
 
 /// [`weights_avx512`]'s constants, as vectors.
@@ -149,22 +169,48 @@ struct WeightConsts {
     floor: std::arch::x86_64::__m512,
 }
 
-/// [`weights_avx512`] on the four vectors from `i`, vector `v` on the
-/// samples its mask `masks[v]` keeps.
+#[cfg(target_arch = "x86_64")]
+impl WeightConsts {
+    /// The constants for the factor `inner` and the scale `2^e` (`e` in
+    /// `[0, 127]`): the polynomial's coefficients times `2^e`, exactly.
+    #[inline(always)]
+    fn new(inner: f32, e: i32) -> WeightConsts {
+        use std::arch::x86_64::*;
+        const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23, as `exp2_weight_scaled_lanes`
+        let scale = f32::from_bits(((127 + e) as u32) << 23);
+        // SAFETY: reached only from the AVX-512 kernels (avx512f).
+        unsafe {
+            let mut c = [_mm512_setzero_ps(); 6];
+            for (v, x) in c.iter_mut().zip(EXP2_POLY) {
+                *v = _mm512_set1_ps(x * scale);
+            }
+            WeightConsts {
+                c,
+                inner: _mm512_set1_ps(inner),
+                round: _mm512_set1_ps(ROUND),
+                floor: _mm512_set1_ps(-126.0),
+            }
+        }
+    }
+}
+
+/// [`weights_avx512`] on the `V` vectors from `i`, vector `v` on the
+/// samples its mask `masks[v]` keeps; each sample's factor from `factors`
+/// if given, else `k.inner`.
 ///
 /// # Safety
 /// The CPU must support AVX-512F; the masked samples must lie inside
-/// `sums`, `dst` and (with `GUIDED`) `tf`.
+/// `sums`, `dst`, `factors` (if given) and (with `GUIDED`) `tf`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn weights_chunk<const GUIDED: bool>(
+unsafe fn weights_chunk<const GUIDED: bool, const V: usize>(
     (sums, tf, dst): (&[i32], &[f32], &mut [f32]),
+    factors: Option<&[f32]>,
     i: usize,
-    masks: [std::arch::x86_64::__mmask16; 4],
+    masks: [std::arch::x86_64::__mmask16; V],
     k: &WeightConsts,
 ) {
     use std::arch::x86_64::*;
-    const V: usize = 4;
     // SAFETY (the whole body): the caller's CPU supports AVX-512F and the
     // masks keep samples inside the rows.
     unsafe {
@@ -172,7 +218,11 @@ unsafe fn weights_chunk<const GUIDED: bool>(
         for v in 0..V {
             let at = i + 16 * v;
             let s = _mm512_maskz_loadu_epi32(masks[v], sums.as_ptr().wrapping_add(at));
-            t[v] = _mm512_mul_ps(_mm512_cvtepi32_ps(s), k.inner);
+            let factor = match factors {
+                Some(f) => _mm512_maskz_loadu_ps(masks[v], f.as_ptr().wrapping_add(at)),
+                None => k.inner,
+            };
+            t[v] = _mm512_mul_ps(_mm512_cvtepi32_ps(s), factor);
             if GUIDED {
                 // `if g < t { g } else { t }`: `vminps` returns its second
                 // operand unless the first is smaller.
@@ -1493,7 +1543,8 @@ mod tests {
     /// lanes form that the other tiers run (`nlmeans::weight_row`), with and
     /// without guides, for every scale `2^e` the boxes use, rows of any
     /// length (masked ends), arguments over the clamps' range and beyond on
-    /// both sides, and guide arguments at `+0`, `-0`, `-inf` and in between.
+    /// both sides, and guide arguments at `+0`, `-0`, `-inf` and in between;
+    /// and `weights_factors_avx512` with a factor per sample.
     #[test]
     fn weights_avx512_match_the_lanes_form() {
         if !avx512_or_skip() {
@@ -1541,6 +1592,31 @@ mod tests {
                         }
                         assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the row");
                     }
+                }
+            }
+        }
+        // Up to 16 samples with a factor each (the clipped columns' counts).
+        for n in 1..=16 {
+            for e in [0, 13, 127] {
+                let (s, g) = (&sums[n * 7..n * 8], &guides[n..2 * n]);
+                let factors: Vec<f32> = (0..n).map(|i| -1.443e-5 * 49.0 / ((4 + i % 4) * (4 + i % 3)) as f32).collect();
+                for guided in [false, true] {
+                    let mut got = [f32::NAN; 17];
+                    // SAFETY: avx512f was detected above.
+                    unsafe {
+                        if guided {
+                            weights_factors_avx512::<true>(s, g, &mut got[..n], &factors, e);
+                        } else {
+                            weights_factors_avx512::<false>(s, &[], &mut got[..n], &factors, e);
+                        }
+                    }
+                    for i in 0..n {
+                        let t = s[i] as f32 * factors[i];
+                        let t = if guided && g[i] < t { g[i] } else { t };
+                        let want = exp2_weight_scaled_lanes([t], e)[0];
+                        assert_eq!(got[i].to_bits(), want.to_bits(), "t = {t:e}, e = {e}, {n} factors");
+                    }
+                    assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the samples");
                 }
             }
         }

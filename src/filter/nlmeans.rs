@@ -18,7 +18,7 @@ use super::kernels::{
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
     GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, feature_square_sum_half_avx2, feature_square_sum_half_avx512,
-    guide_pair_products_avx512, weights_avx512,
+    guide_pair_products_avx512, weights_avx512, weights_factors_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -1079,6 +1079,24 @@ fn weight_row<const W: usize, const GUIDED: bool, const AVX512: bool>(
             // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
             // which runs only on CPUs with avx512f.
             unsafe { weights_avx512::<GUIDED>(&sums[unclipped.clone()], tf, &mut dst[unclipped], inner, e) };
+            // The clipped columns (up to `2f`), up to 16 in one vector, each
+            // with its own count's factor; the same bits as the scalar loop.
+            let mut clipped = clipped.peekable();
+            while clipped.peek().is_some() {
+                let (mut at, mut s, mut fac, mut g) = ([0usize; 16], [0i32; 16], [0.0f32; 16], [0.0f32; 16]);
+                let mut m = 0;
+                for (i, nx) in clipped.by_ref().take(16) {
+                    (at[m], s[m], fac[m], g[m]) = (i, sums[i], k / (nx * ny), guide(i));
+                    m += 1;
+                }
+                let mut w = [0.0f32; 16];
+                // SAFETY: as above.
+                unsafe { weights_factors_avx512::<GUIDED>(&s[..m], &g[..m], &mut w[..m], &fac[..m], e) };
+                for j in 0..m {
+                    dst[at[j]] = w[j];
+                }
+            }
+            return;
         }
     } else if len < W {
         for i in unclipped {
