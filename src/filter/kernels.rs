@@ -53,13 +53,12 @@ pub fn exp2_weight_lanes<const W: usize>(t: [f32; W]) -> [f32; W] {
 #[inline(always)]
 pub fn exp2_weight_scaled_lanes<const W: usize>(t: [f32; W], e: i32) -> [f32; W] {
     debug_assert!((0..=127).contains(&e));
-    const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
     // Two selects that map to min/max instructions; NaN fails `t > -126` and
     // lands on the clamp value.
     let t = lanes(t, |t| if t > -126.0 { t } else { -126.0 });
     let t = lanes(t, |t| if t < 0.0 { t } else { 0.0 });
-    let tr = lanes(t, |t| t + ROUND);
-    let f = lanes2(t, tr, |t, tr| t - (tr - ROUND));
+    let tr = lanes(t, |t| t + EXP2_ROUND);
+    let f = lanes2(t, tr, |t, tr| t - (tr - EXP2_ROUND));
     let c = EXP2_POLY;
     let mut p = lanes(f, |f| c[0].mul_add(f, c[1]));
     for &ck in &c[2..] {
@@ -68,7 +67,7 @@ pub fn exp2_weight_scaled_lanes<const W: usize>(t: [f32; W], e: i32) -> [f32; W]
     lanes2(p, tr, |p, tr| {
         // `tr`'s low mantissa bits hold the integer `n` in [-126, 0]: read it
         // with an integer subtraction (a float-to-int cast would be scalarised).
-        let ni = (tr.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
+        let ni = (tr.to_bits() as i32).wrapping_sub(EXP2_ROUND.to_bits() as i32);
         p * f32::from_bits(((ni + 127 + e) as u32) << 23)
     })
 }
@@ -79,6 +78,10 @@ pub fn exp2_weight_scaled_lanes<const W: usize>(t: [f32; W], e: i32) -> [f32; W]
 // Fitted, not ln 2 (0.693_147_2): the lower degrees absorb the difference.
 #[allow(clippy::approx_constant)]
 const EXP2_POLY: [f32; 6] = [1.326_470_2e-3, 9.671_505e-3, 5.550_733_6e-2, 2.402_224_2e-1, 0.693_147, 1.0];
+
+/// `1.5 * 2^23`: adding it to `t` in `[-126, 0]` rounds `t` to an integer
+/// (to even), which its low mantissa bits then hold.
+const EXP2_ROUND: f32 = 12_582_912.0;
 
 /// The weights of a row on the AVX-512 tier: `dst[i]` is
 /// [`exp2_weight_scaled_lanes`] (times `2^e`) of `t = sums[i] as f32 * inner`,
@@ -176,7 +179,6 @@ impl WeightConsts {
     #[inline(always)]
     fn new(inner: f32, e: i32) -> WeightConsts {
         use std::arch::x86_64::*;
-        const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23, as `exp2_weight_scaled_lanes`
         let scale = f32::from_bits(((127 + e) as u32) << 23);
         // SAFETY: reached only from the AVX-512 kernels (avx512f).
         unsafe {
@@ -187,7 +189,7 @@ impl WeightConsts {
             WeightConsts {
                 c,
                 inner: _mm512_set1_ps(inner),
-                round: _mm512_set1_ps(ROUND),
+                round: _mm512_set1_ps(EXP2_ROUND),
                 floor: _mm512_set1_ps(-126.0),
             }
         }
@@ -1545,6 +1547,7 @@ mod tests {
     /// length (masked ends), arguments over the clamps' range and beyond on
     /// both sides, and guide arguments at `+0`, `-0`, `-inf` and in between;
     /// and `weights_factors_avx512` with a factor per sample.
+    #[cfg(target_arch = "x86_64")]
     #[test]
     fn weights_avx512_match_the_lanes_form() {
         if !avx512_or_skip() {
@@ -1568,6 +1571,18 @@ mod tests {
                 _ => -(next().abs() * 10f32.powi(i % 4)),
             })
             .collect();
+        // Each weight against the lanes form of its argument; the samples
+        // past the row untouched. Returns the samples checked.
+        let check = |got: &[f32], n: usize, s: &[i32], factor: &dyn Fn(usize) -> f32, g: &[f32], guided: bool, e| {
+            for i in 0..n {
+                let t = s[i] as f32 * factor(i);
+                let t = if guided && g[i] < t { g[i] } else { t };
+                let want = exp2_weight_scaled_lanes([t], e)[0];
+                assert_eq!(got[i].to_bits(), want.to_bits(), "t = {t:e}, e = {e}, guided {guided}, n = {n}");
+            }
+            assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the row");
+            n
+        };
         let mut checked = [0usize; 2];
         for inner in [-1.443e-5f32, -3.1e-6, -0.47, 2.0e-6] {
             for e in [0, 1, 13, 40, 127] {
@@ -1583,14 +1598,7 @@ mod tests {
                                 weights_avx512::<false>(s, &[], &mut got[..n], inner, e);
                             }
                         }
-                        for i in 0..n {
-                            let t = s[i] as f32 * inner;
-                            let t = if guided && g[i] < t { g[i] } else { t };
-                            let want = exp2_weight_scaled_lanes([t], e)[0];
-                            assert_eq!(got[i].to_bits(), want.to_bits(), "t = {t:e}, e = {e}, guided {guided}");
-                            checked[guided as usize] += 1;
-                        }
-                        assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the row");
+                        checked[guided as usize] += check(&got, n, s, &|_| inner, g, guided, e);
                     }
                 }
             }
@@ -1610,13 +1618,7 @@ mod tests {
                             weights_factors_avx512::<false>(s, &[], &mut got[..n], &factors, e);
                         }
                     }
-                    for i in 0..n {
-                        let t = s[i] as f32 * factors[i];
-                        let t = if guided && g[i] < t { g[i] } else { t };
-                        let want = exp2_weight_scaled_lanes([t], e)[0];
-                        assert_eq!(got[i].to_bits(), want.to_bits(), "t = {t:e}, e = {e}, {n} factors");
-                    }
-                    assert!(got[n..].iter().all(|v| v.is_nan()), "a weight written past the samples");
+                    check(&got, n, s, &|i| factors[i], g, guided, e);
                 }
             }
         }
