@@ -8,12 +8,15 @@
 //!   `W × (window + 2·block_rows) × bytes_all`;
 //! * one band input = filter channels over the window + other channels over
 //!   the band; `depth + 1` of them queued or being read, one being filtered;
-//! * the filter stage's `f32` planes of the filter channels over the window;
+//! * the filter stage's `f32` planes of the filter channels over the window,
+//!   for each of the bands whose tiles it has queued (`in_flight`: two when
+//!   they fit the limit, else one);
 //! * tile working sets: `threads × 4 × (tile + 2h) × window × filter_planes × 4`
 //!   (cropped inputs plus the filter's intermediates, the guides' half-float
 //!   copies counted as half a plane per feature channel);
-//! * band outputs (`f32` denoised channels plus the rest), `depth + 2` of them
-//!   in flight;
+//! * band outputs (`f32` denoised channels plus the rest), `depth + 1 +
+//!   in_flight` of them: the bands being filtered, one finished and waiting
+//!   for the writer, and `depth` queued;
 //! * the writer: rows waiting for their block, a band's compressed blocks,
 //!   and its encoders' scratch (`exrio::zip::ScratchPool`: prepared and
 //!   deflated bytes of one block per encoder; the encoders are the sink's
@@ -72,12 +75,19 @@ pub struct BandPlan {
     pub tile_width: usize,
     /// Capacity of each bounded queue between stages (0: rendezvous hand-off).
     pub queue_depth: usize,
+    /// Bands whose tiles the filter stage queues at once (1 or
+    /// [`MAX_BANDS_IN_FLIGHT`]): with two, a band's tiles start while the
+    /// previous band's last tiles finish, so no thread waits at a band's end.
+    pub bands_in_flight: usize,
     /// Estimated peak bytes.
     pub estimate_bytes: u64,
 }
 
+/// The most bands the filter stage queues at once.
+pub const MAX_BANDS_IN_FLIGHT: usize = 2;
+
 /// Estimated peak bytes for a schedule.
-pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usize) -> u64 {
+pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usize, in_flight: usize) -> u64 {
     let w = b.width as u64;
     let h = b.halo as u64;
     let band = band_rows as u64;
@@ -85,11 +95,11 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     let cache = w * (window + 2 * b.block_rows as u64) * b.bytes_all as u64;
     let band_in = w * (window * b.bytes_filter as u64 + band * (b.bytes_all - b.bytes_filter) as u64);
     let inputs = (depth as u64 + 2) * band_in;
-    let planes = w * window * b.filter_channels as u64 * 4;
+    let planes = in_flight as u64 * w * window * b.filter_channels as u64 * 4;
     let tile = tile_width.min(b.width) as u64;
     let tiles = b.threads as u64 * 4 * (tile + 2 * h).min(w) * window * b.filter_planes as u64 * 4;
     let band_out = w * band * (b.output_channels as u64 * 4 + b.bytes_all as u64);
-    let outputs = (depth as u64 + 2) * band_out;
+    let outputs = (depth + 1 + in_flight) as u64 * band_out;
     // The writer: rows waiting for their block, a band's compressed blocks
     // (stored raw when they do not shrink), and two block-sized buffers per
     // encoder.
@@ -121,13 +131,22 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
     let mut band = tile_size.max(1).min(b.height.max(1));
     let mut tile_w = tile_size.max(1).min(b.width.max(1));
     loop {
-        let est = estimate(b, band, tile_w, depth);
-        if est <= limit_bytes {
+        // A second band in flight goes before the band height (shorter bands
+        // recompute more halo rows).
+        let fits = [MAX_BANDS_IN_FLIGHT, 1].into_iter().find(|&n| estimate(b, band, tile_w, depth, n) <= limit_bytes);
+        if let Some(in_flight) = fits {
             // Evening out never grows a size, so the estimate still fits.
             let (band, tile_w) = (even(b.height, band), even(b.width, tile_w));
-            let estimate_bytes = estimate(b, band, tile_w, depth);
-            return Ok(BandPlan { band_rows: band, tile_width: tile_w, queue_depth: depth, estimate_bytes });
+            let estimate_bytes = estimate(b, band, tile_w, depth, in_flight);
+            return Ok(BandPlan {
+                band_rows: band,
+                tile_width: tile_w,
+                queue_depth: depth,
+                bands_in_flight: in_flight,
+                estimate_bytes,
+            });
         }
+        let est = estimate(b, band, tile_w, depth, 1);
         if band > 1 {
             band = band.div_ceil(2);
         } else if tile_w > 1 {
@@ -248,7 +267,7 @@ mod tests {
         assert_eq!(even(100, 512), 100);
         assert_eq!(even(513, 512), 257);
         let p = plan(&input(1920, 1080), 512, 8 << 30).unwrap();
-        assert_eq!((p.band_rows, p.tile_width), (360, 480));
+        assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (360, 480, MAX_BANDS_IN_FLIGHT));
         // Never larger than asked, and the parts cover the frame in the same count.
         for total in 1..600 {
             for size in [1, 7, 64, 256, 512] {
@@ -267,6 +286,13 @@ mod tests {
         assert!(small.estimate_bytes <= 512 << 20);
         assert!(small.band_rows < 256);
         assert_eq!(small.tile_width, 256, "tiles keep their width while bands can shrink");
+        // Between one band's and two bands' estimates, the plan keeps its
+        // band height and queues one band at a time.
+        let (one, two) = (estimate(&b, 256, 256, 0, 1), estimate(&b, 256, 256, 0, 2));
+        assert!(one < two);
+        let p = plan(&b, 256, (one + two) / 2).unwrap();
+        assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (256, 256, 1));
+        assert_eq!(p.estimate_bytes, one);
         let e = plan(&b, 256, 32 << 20).unwrap_err().to_string();
         assert!(e.contains("memory limit"), "{e}");
     }
@@ -276,7 +302,7 @@ mod tests {
     #[test]
     fn writer_scratch_is_counted_per_busy_encoder() {
         let with = |threads: usize, band: usize| {
-            estimate(&BudgetInput { writer_threads: threads, ..input(4096, 4096) }, band, 256, 0)
+            estimate(&BudgetInput { writer_threads: threads, ..input(4096, 4096) }, band, 256, 0, 1)
         };
         let block = 2 * 4096 * 16 * (3 * 4 + 24 * 2 + 14 * 4) as u64;
         assert_eq!(with(2, 64) - with(1, 64), block);

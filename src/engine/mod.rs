@@ -14,6 +14,10 @@
 pub mod budget;
 pub mod synthetic;
 
+use std::borrow::Cow;
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::bounded;
@@ -23,7 +27,7 @@ use tracing::{debug, info, info_span};
 use crate::error::Error;
 use crate::exrio::roles::ChannelRoles;
 use crate::filter::nlmeans::ScratchShape;
-use crate::filter::{self, Params, Pipeline};
+use crate::filter::{FrameInputs, Params, Pipeline, PreparedRegion};
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Plane, Samples};
 use budget::{BandPlan, BudgetInput};
@@ -117,8 +121,6 @@ struct FilterCounters {
     tiles: usize,
     filtered_px: usize,
     repaired: usize,
-    /// Output pixels of the bands filtered so far.
-    done_px: usize,
 }
 
 /// The target of the engine's progress events: one `TRACE` event per
@@ -239,11 +241,12 @@ pub fn denoise_stream(
     let cp = channel_plan(&names, roles)?;
     let (halo, plan, threads) = plan_with(source, roles, params, opts, &cp)?;
     info!(
-        "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, estimated peak {:.1} MiB of {:.1} MiB allowed",
+        "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB allowed",
         plan.band_rows,
         plan.tile_width,
         plan.band_rows,
         plan.queue_depth,
+        plan.bands_in_flight,
         plan.estimate_bytes as f64 / 1048576.0,
         opts.memory_limit as f64 / 1048576.0
     );
@@ -290,35 +293,67 @@ pub fn denoise_stream(
             }
             spent
         });
-        // Filter.
+        // Filter: up to `plan.bands_in_flight` bands' tiles queued in the pool
+        // at once, so the next band's tiles start while the last tiles of a band
+        // finish (no thread waits at a band's end); bands leave in order.
         let filter = s.spawn(move || {
-            let mut spent = Duration::ZERO;
+            let ctx =
+                BandCtx { frame, halo, plan: &plan, roles, params, names: names_ref, cp: cp_ref, half: opts.half };
             let mut counters = FilterCounters::default();
-            for msg in in_rx {
-                let t = Instant::now();
-                let res = msg.and_then(|b| {
-                    let _span = info_span!("filter", y0 = b.band.y0).entered();
-                    filter_band(
-                        b,
-                        frame,
-                        halo,
-                        &plan,
-                        roles,
-                        params,
-                        names_ref,
-                        cp_ref,
-                        pool_ref,
-                        opts.half,
-                        &mut counters,
-                    )
-                });
-                spent += t.elapsed();
-                let failed = res.is_err();
-                if out_tx.send(res).is_err() || failed {
-                    break;
+            let (done_px, cancel) = (AtomicUsize::new(0), AtomicBool::new(false));
+            let (done_px, cancel) = (&done_px, &cancel);
+            let mut busy = Busy::default();
+            pool_ref.in_place_scope(|scope| {
+                let mut in_flight: VecDeque<InFlight> = VecDeque::new();
+                // Hand the oldest band to the writer; false once the run stops.
+                let finish_oldest =
+                    |in_flight: &mut VecDeque<InFlight>, busy: &mut Busy, counters: &mut FilterCounters| {
+                        let Some(band) = in_flight.pop_front() else { return true };
+                        let res = band.finish(&ctx, counters);
+                        if in_flight.is_empty() {
+                            busy.stop();
+                        }
+                        let failed = res.is_err();
+                        out_tx.send(res).is_ok() && !failed
+                    };
+                let mut stopped = false;
+                for msg in in_rx {
+                    busy.start();
+                    let (work, carried) = match msg {
+                        Ok(b) => {
+                            let _span = info_span!("filter", y0 = b.band.y0).entered();
+                            let (work, carried) =
+                                prepare_band(b, &ctx, in_flight.is_empty().then_some(pool_ref), &mut counters);
+                            (Arc::new(work), carried)
+                        }
+                        Err(e) => {
+                            let _ = out_tx.send(Err(e));
+                            stopped = true;
+                            break;
+                        }
+                    };
+                    let (tx, rx) = bounded(work.tiles.len());
+                    for &t in &work.tiles {
+                        let (work, tx) = (Arc::clone(&work), tx.clone());
+                        let ctx = &ctx;
+                        scope.spawn(move |scope| start_tile(scope, work, t, ctx, (tx, done_px, cancel)));
+                    }
+                    in_flight.push_back(InFlight { work, results: rx, carried });
+                    if in_flight.len() >= plan.bands_in_flight
+                        && !finish_oldest(&mut in_flight, &mut busy, &mut counters)
+                    {
+                        stopped = true;
+                        break;
+                    }
                 }
-            }
-            (spent, counters)
+                while !stopped && !in_flight.is_empty() {
+                    stopped = !finish_oldest(&mut in_flight, &mut busy, &mut counters);
+                }
+                // After a failure the bands still in flight are dropped: their
+                // tiles are skipped, and the scope waits for them to return.
+                cancel.store(true, Ordering::Relaxed);
+            });
+            (busy.total, counters)
         });
         // Writer (this thread).
         let mut spent = Duration::ZERO;
@@ -366,87 +401,237 @@ pub fn denoise_stream(
     Ok(report)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn filter_band(
-    b: BandIn,
+/// What every band of a run shares.
+struct BandCtx<'a> {
     frame: Rect,
     halo: usize,
-    plan: &BandPlan,
-    roles: &ChannelRoles,
-    params: &Params,
-    names: &[String],
-    cp: &ChannelPlan,
-    pool: &rayon::ThreadPool,
+    plan: &'a BandPlan,
+    roles: &'a ChannelRoles,
+    params: &'a Params,
+    names: &'a [String],
+    cp: &'a ChannelPlan,
     half: bool,
-    counters: &mut FilterCounters,
-) -> Result<Vec<ChannelRows>, Error> {
-    let BandIn { band, filter_rows, other_rows } = b;
-    // Filter channels that are carried (not denoised) go out over the band only.
-    let mut out: Vec<Option<ChannelRows>> = (0..names.len()).map(|_| None).collect();
-    for (&i, r) in cp.filter_idx.iter().zip(&filter_rows) {
-        if !cp.output_idx.contains(&i) {
-            out[i] = Some(r.rows(band.y0, band.y1));
+}
+
+/// A band being filtered, shared by its tile tasks.
+struct BandWork {
+    band: Rect,
+    inputs: FrameInputs,
+    tiles: Vec<Rect>,
+    /// The denoised channels over the band, each tile pasted in as it finishes.
+    out_planes: Mutex<Vec<Plane>>,
+    repaired: AtomicUsize,
+}
+
+/// A band whose tiles are queued or running.
+struct InFlight {
+    work: Arc<BandWork>,
+    /// One message per tile.
+    results: crossbeam_channel::Receiver<Result<(), Error>>,
+    /// The channels carried through (not denoised), by source index.
+    carried: Vec<(usize, ChannelRows)>,
+}
+
+impl InFlight {
+    /// Wait for the band's tiles and assemble its rows (every channel, by
+    /// source index).
+    fn finish(self, ctx: &BandCtx<'_>, counters: &mut FilterCounters) -> Result<Vec<ChannelRows>, Error> {
+        let InFlight { work, results, carried } = self;
+        let mut first_err = None;
+        for _ in 0..work.tiles.len() {
+            match results.recv() {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    first_err.get_or_insert(e);
+                }
+                Err(_) => {
+                    first_err.get_or_insert(Error::Internal("a tile worker panicked".into()));
+                }
+            }
+        }
+        if let Some(e) = first_err {
+            return Err(e);
+        }
+        counters.repaired += work.repaired.load(Ordering::Relaxed);
+        let out_planes =
+            std::mem::take(&mut *work.out_planes.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?);
+        // (The tasks may still hold their handles for a moment: the planes
+        // are taken, not the `Arc` unwrapped.)
+        let mut out: Vec<Option<ChannelRows>> = (0..ctx.names.len()).map(|_| None).collect();
+        for (i, r) in carried {
+            out[i] = Some(r);
+        }
+        for (&i, p) in ctx.cp.output_idx.iter().zip(out_planes) {
+            let samples = if ctx.half { Samples::half_from_f32(p.data()) } else { Samples::F32(p.into_vec()) };
+            out[i] = Some(ChannelRows { rect: work.band, samples });
+        }
+        debug!("band {:?}: {} tiles", work.band, work.tiles.len());
+        out.into_iter()
+            .enumerate()
+            .map(|(i, r)| {
+                r.ok_or_else(|| Error::Internal(format!("channel {} missing from band output", ctx.names[i])))
+            })
+            .collect()
+    }
+}
+
+/// The time a stage had work in hand.
+#[derive(Default)]
+struct Busy {
+    since: Option<Instant>,
+    total: Duration,
+}
+
+impl Busy {
+    fn start(&mut self) {
+        self.since.get_or_insert_with(Instant::now);
+    }
+
+    fn stop(&mut self) {
+        if let Some(t) = self.since.take() {
+            self.total += t.elapsed();
         }
     }
+}
+
+/// A band's `f32` input planes and its tiles.
+fn prepare_band(
+    b: BandIn,
+    ctx: &BandCtx<'_>,
+    pool: Option<&rayon::ThreadPool>,
+    counters: &mut FilterCounters,
+) -> (BandWork, Vec<(usize, ChannelRows)>) {
+    let BandIn { band, filter_rows, other_rows } = b;
+    let cp = ctx.cp;
+    // Filter channels that are carried (not denoised) go out over the band only.
+    let mut carried: Vec<(usize, ChannelRows)> = Vec::new();
+    for (&i, r) in cp.filter_idx.iter().zip(&filter_rows) {
+        if !cp.output_idx.contains(&i) {
+            carried.push((i, r.rows(band.y0, band.y1)));
+        }
+    }
+    carried.extend(cp.other_idx.iter().copied().zip(other_rows));
     // f32 planes, each converted once and moved into the inputs at its last use.
-    let uses = roles.inputs_channels();
-    // Converted on every worker (each channel's rows freed once converted).
-    let converted: Vec<Plane> = pool.install(|| filter_rows.into_par_iter().map(ChannelRows::into_plane).collect());
+    let uses = ctx.roles.inputs_channels();
+    // Each channel's rows are freed once converted. With no band in flight the
+    // workers are idle and convert; else this thread does, beside them (a job
+    // given to the pool would wait behind the queued tiles).
+    let converted: Vec<Plane> = match pool {
+        Some(pool) => pool.install(|| filter_rows.into_par_iter().map(ChannelRows::into_plane).collect()),
+        None => filter_rows.into_iter().map(ChannelRows::into_plane).collect(),
+    };
     let mut planes: Vec<(String, Option<Plane>, usize)> = Vec::new();
     for (&i, plane) in cp.filter_idx.iter().zip(converted) {
-        let n = uses.iter().filter(|u| **u == names[i]).count();
-        planes.push((names[i].clone(), Some(plane), n));
+        let n = uses.iter().filter(|u| **u == ctx.names[i]).count();
+        planes.push((ctx.names[i].clone(), Some(plane), n));
     }
-    let inputs = roles.inputs_with(|n| {
+    let inputs = ctx.roles.inputs_with(|n| {
         let slot = planes.iter_mut().find(|(name, _, _)| name == n).expect("role channel read");
         slot.2 -= 1;
         if slot.2 == 0 { slot.1.take().expect("plane still there") } else { slot.1.clone().expect("plane still there") }
     });
     drop(planes);
-    let tiles = band.tiles(plan.tile_width, plan.band_rows);
+    let tiles = band.tiles(ctx.plan.tile_width, ctx.plan.band_rows);
     counters.tiles += tiles.len();
-    counters.filtered_px += tiles.iter().map(|t| t.expand(halo).intersect(&frame).area()).sum::<usize>();
-    let repaired = std::sync::atomic::AtomicUsize::new(0);
-    let (done_before, band_done, total) = (counters.done_px, std::sync::atomic::AtomicUsize::new(0), frame.area());
-    // Each finished tile is pasted into the band at once, so only the tiles
-    // being filtered hold results.
-    let out_planes = std::sync::Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect::<Vec<_>>());
-    pool.install(|| {
-        tiles.par_iter().try_for_each(|t| -> Result<(), Error> {
-            let window = inputs.crop(t.expand(halo).intersect(&frame));
-            let d = filter::denoise_region(&window, frame, *t, params)?;
-            drop(window);
-            repaired.fetch_add(d.repaired, std::sync::atomic::Ordering::Relaxed);
-            let mut planes = out_planes.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
-            for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
-                dst.paste(src);
-            }
-            drop(planes);
-            let done = done_before + band_done.fetch_add(t.area(), std::sync::atomic::Ordering::Relaxed) + t.area();
-            tracing::trace!(target: PROGRESS_TARGET, done = done as u64, total = total as u64);
-            Ok(())
-        })
-    })?;
-    drop(inputs);
-    counters.repaired += repaired.into_inner();
-    counters.done_px += band.area();
-    let n_tiles = tiles.len();
-    let out_planes = out_planes.into_inner().map_err(|_| Error::Internal("a tile worker panicked".into()))?;
-    let samples: Vec<Samples> = pool.install(|| {
-        out_planes
-            .into_par_iter()
-            .map(|p| if half { Samples::half_from_f32(p.data()) } else { Samples::F32(p.into_vec()) })
-            .collect()
+    counters.filtered_px += tiles.iter().map(|t| t.expand(ctx.halo).intersect(&ctx.frame).area()).sum::<usize>();
+    let work = BandWork {
+        band,
+        inputs,
+        tiles,
+        out_planes: Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect()),
+        repaired: AtomicUsize::new(0),
+    };
+    (work, carried)
+}
+
+/// What a tile's tasks report to: its band's results channel, the frame's
+/// progress, the run's cancel flag.
+type TileReport<'a> = (crossbeam_channel::Sender<Result<(), Error>>, &'a AtomicUsize, &'a AtomicBool);
+
+/// A tile being filtered, shared by its blocks' tasks.
+struct TileWork<'a> {
+    band: Arc<BandWork>,
+    tile: Rect,
+    region: PreparedRegion<'static>,
+    /// Each block's result, in the order of `region.blocks()`.
+    results: Mutex<Vec<Option<Vec<Vec<Plane>>>>>,
+    remaining: AtomicUsize,
+    report: TileReport<'a>,
+}
+
+/// A tile's task: the stages before the kernel, then one task per kernel
+/// block, queued on this worker (idle workers take them). No task waits
+/// for another: a worker never holds a tile open while it runs other work,
+/// so a band's last tiles are not held up by the next band's.
+fn start_tile<'s>(
+    scope: &rayon::Scope<'s>,
+    band: Arc<BandWork>,
+    tile: Rect,
+    ctx: &'s BandCtx<'s>,
+    report: TileReport<'s>,
+) {
+    // After a failure, the queued tiles are skipped.
+    if report.2.load(Ordering::Relaxed) {
+        let _ = report.0.send(Err(Error::Internal("cancelled".into())));
+        return;
+    }
+    let window = band.inputs.crop(tile.expand(ctx.halo).intersect(&ctx.frame));
+    let region = match PreparedRegion::new(Cow::Owned(window), ctx.frame, tile, ctx.params) {
+        Ok(region) => region,
+        Err(e) => {
+            let _ = report.0.send(Err(e));
+            return;
+        }
+    };
+    let blocks = region.blocks();
+    let work = Arc::new(TileWork {
+        band,
+        tile,
+        results: Mutex::new(vec![None; blocks.len()]),
+        remaining: AtomicUsize::new(blocks.len()),
+        region,
+        report,
     });
-    for (&i, samples) in cp.output_idx.iter().zip(samples) {
-        out[i] = Some(ChannelRows { rect: band, samples });
+    if blocks.is_empty() {
+        finish_tile(&work, ctx);
     }
-    for (&i, r) in cp.other_idx.iter().zip(other_rows) {
-        out[i] = Some(r);
+    for (i, block) in blocks.into_iter().enumerate() {
+        let work = Arc::clone(&work);
+        scope.spawn(move |_| {
+            if !work.report.2.load(Ordering::Relaxed) {
+                let r = work.region.filter_block(block);
+                if let Ok(mut results) = work.results.lock() {
+                    results[i] = Some(r);
+                }
+            }
+            if work.remaining.fetch_sub(1, Ordering::AcqRel) == 1 {
+                finish_tile(&work, ctx);
+            }
+        });
     }
-    debug!("band {band:?}: {n_tiles} tiles");
-    out.into_iter()
-        .enumerate()
-        .map(|(i, r)| r.ok_or_else(|| Error::Internal(format!("channel {} missing from band output", names[i]))))
-        .collect()
+}
+
+/// A tile's last block is done: assemble the tile and paste it into the
+/// band's outputs (each finished tile at once, so only the tiles being
+/// filtered hold results).
+fn finish_tile(work: &TileWork<'_>, ctx: &BandCtx<'_>) {
+    let res = (|| {
+        let poisoned = || Error::Internal("a tile worker panicked".into());
+        let results = std::mem::take(&mut *work.results.lock().map_err(|_| poisoned())?);
+        let Some(blocks) = results.into_iter().collect::<Option<Vec<_>>>() else {
+            return Err(Error::Internal("cancelled".into()));
+        };
+        let d = work.region.finish(blocks);
+        work.band.repaired.fetch_add(d.repaired, Ordering::Relaxed);
+        let mut planes = work.band.out_planes.lock().map_err(|_| poisoned())?;
+        for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
+            dst.paste(src);
+        }
+        drop(planes);
+        let (t, done_px) = (work.tile, work.report.1);
+        let done = done_px.fetch_add(t.area(), Ordering::Relaxed) + t.area();
+        tracing::trace!(target: PROGRESS_TARGET, done = done as u64, total = ctx.frame.area() as u64);
+        Ok(())
+    })();
+    let _ = work.report.0.send(res);
 }

@@ -19,11 +19,15 @@ pub mod variance;
 pub use features::Feature;
 pub use variance::VarianceSource;
 
+use std::borrow::Cow;
+
+use rayon::prelude::*;
+
 use crate::error::Error;
 use crate::geom::Rect;
 use crate::image::Plane;
 use features::GuideSettings;
-use nlmeans::{Job, NlmSettings};
+use nlmeans::{GuideFeature, Job, NlmSettings};
 
 /// Settings of the feature prefilter (NL-means of each feature with its own variance).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -381,15 +385,114 @@ fn check_buffer(b: &Buffer, need_values: Rect, need_var: Rect) -> Result<(), Err
 ///
 /// Inputs must cover `(out ⊕ halo) ∩ frame` with the halo of
 /// [`Pipeline::halo`]; the result equals the same rectangle of whole-frame
-/// filtering bit for bit.
+/// filtering bit for bit. The kernel's blocks run in parallel (rayon); to
+/// schedule them yourself, use [`PreparedRegion`].
 pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Params) -> Result<Denoised, Error> {
-    params.validate()?;
-    if !frame.contains_rect(&out) {
-        return Err(Error::InvalidInput(format!("output rectangle {out:?} is not inside the frame {frame:?}")));
+    let region = PreparedRegion::new(Cow::Borrowed(inputs), frame, out, params)?;
+    let blocks: Vec<_> = region.blocks().par_iter().map(|b| region.filter_block(*b)).collect();
+    Ok(region.finish(blocks))
+}
+
+/// A region of [`denoise_region`] ready for the NL-means kernel: inputs
+/// checked and repaired, variances prefiltered, guides prepared. Its
+/// [`blocks`](Self::blocks) can be filtered in any order, on any thread
+/// (each a function of frame coordinates only), and [`finish`](Self::finish)
+/// assembles them: the same bits as [`denoise_region`].
+pub struct PreparedRegion<'a> {
+    inputs: Cow<'a, FrameInputs>,
+    variances: Vec<Vec<Plane>>,
+    guides: Vec<GuideFeature>,
+    frame: Rect,
+    out: Rect,
+    settings: NlmSettings,
+    repaired: usize,
+}
+
+impl<'a> PreparedRegion<'a> {
+    /// Check `inputs` (as [`denoise_region`]) and run every stage before the
+    /// kernel: the repair, the variance prefilter, the guides.
+    pub fn new(inputs: Cow<'a, FrameInputs>, frame: Rect, out: Rect, params: &Params) -> Result<Self, Error> {
+        let region = |inputs, variances, guides, repaired| PreparedRegion {
+            inputs,
+            variances,
+            guides,
+            frame,
+            out,
+            settings: params.main_settings(),
+            repaired,
+        };
+        params.validate()?;
+        if !frame.contains_rect(&out) {
+            return Err(Error::InvalidInput(format!("output rectangle {out:?} is not inside the frame {frame:?}")));
+        }
+        let pipeline = Pipeline::new(*params, InputShape::of(&inputs));
+        check_inputs(&inputs, &pipeline, frame, out)?;
+        if out.is_empty() {
+            return Ok(region(inputs, Vec::new(), Vec::new(), 0));
+        }
+        let main_rect = out.expand(pipeline.main_radius()).intersect(&frame);
+        let rho = params.variance_prefilter_radius;
+        let (fixed, repaired) = match repair::repair_inputs(&inputs, frame, out) {
+            (Cow::Owned(fixed), n) => (Some(fixed), n),
+            (Cow::Borrowed(_), n) => (None, n),
+        };
+        let inputs = fixed.map_or(inputs, Cow::Owned);
+        let variances: Vec<Vec<Plane>> = buffers(&inputs)
+            .iter()
+            .map(|b| variance::prefiltered(&b.variance, b.values.len(), frame, rho, main_rect))
+            .collect();
+        let gs = params.guide_settings();
+        let guide_rect = out.expand(pipeline.guide_radius()).intersect(&frame);
+        let den_rect = out.expand(params.patch_radius).intersect(&frame);
+        let guides: Vec<_> =
+            inputs.features.iter().map(|f| features::prepare(f, &gs, frame, guide_rect, den_rect)).collect();
+        Ok(region(inputs, variances, guides, repaired))
     }
-    let pipeline = Pipeline::new(*params, InputShape::of(inputs));
-    let main_rect = out.expand(pipeline.main_radius()).intersect(&frame);
-    let rho = params.variance_prefilter_radius;
+
+    /// The kernel's blocks (none for an empty output rectangle).
+    pub fn blocks(&self) -> Vec<Rect> {
+        if self.out.is_empty() { Vec::new() } else { nlmeans::blocks(self.out) }
+    }
+
+    /// Filter one of [`blocks`](Self::blocks): per job (the beauty, or each
+    /// light layer), one plane per channel over `block`.
+    pub fn filter_block(&self, block: Rect) -> Vec<Vec<Plane>> {
+        nlmeans::nlmeans_block(&self.jobs(), &self.guides, self.frame, block, &self.settings)
+    }
+
+    /// The output from every block's result (in any order).
+    pub fn finish(&self, blocks: Vec<Vec<Vec<Plane>>>) -> Denoised {
+        if self.out.is_empty() {
+            return Denoised { colour: Vec::new(), layers: Vec::new(), repaired: 0 };
+        }
+        let mut results = nlmeans::assemble(&self.jobs(), self.out, blocks);
+        let repaired = self.repaired;
+        if self.inputs.layers.is_empty() {
+            Denoised { colour: results.pop().expect("one job"), layers: Vec::new(), repaired }
+        } else {
+            let mut colour: Vec<Plane> = results[0].clone();
+            for layer in &results[1..] {
+                for (acc, p) in colour.iter_mut().zip(layer) {
+                    for (a, v) in acc.data_mut().iter_mut().zip(p.data()) {
+                        *a += *v;
+                    }
+                }
+            }
+            Denoised { colour, layers: results, repaired }
+        }
+    }
+
+    fn jobs(&self) -> Vec<Job<'_>> {
+        buffers(&self.inputs)
+            .into_iter()
+            .zip(&self.variances)
+            .map(|(b, v)| Job { values: b.values.iter().collect(), variance: v.iter().collect() })
+            .collect()
+    }
+}
+
+/// Check that every input covers what its stages read of it.
+fn check_inputs(inputs: &FrameInputs, pipeline: &Pipeline, frame: Rect, out: Rect) -> Result<(), Error> {
     // Inputs are read one pixel further than each stage's reach, for the repair.
     let reach = |radius: usize| out.expand(radius + repair::REPAIR_RADIUS).intersect(&frame);
     let (main_in, var_in) = (reach(pipeline.main_radius()), reach(pipeline.variance_radius()));
@@ -430,40 +533,10 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
             }
         }
     }
-    if out.is_empty() {
-        return Ok(Denoised { colour: Vec::new(), layers: Vec::new(), repaired: 0 });
-    }
-    let (inputs, repaired) = repair::repair_inputs(inputs, frame, out);
-    let inputs = &*inputs;
+    Ok(())
+}
 
-    let buffers: Vec<&Buffer> =
-        if inputs.layers.is_empty() { vec![&inputs.colour] } else { inputs.layers.iter().collect() };
-    let variances: Vec<Vec<Plane>> =
-        buffers.iter().map(|b| variance::prefiltered(&b.variance, b.values.len(), frame, rho, main_rect)).collect();
-    let jobs: Vec<Job<'_>> = buffers
-        .iter()
-        .zip(&variances)
-        .map(|(b, v)| Job { values: b.values.iter().collect(), variance: v.iter().collect() })
-        .collect();
-
-    let gs = params.guide_settings();
-    let guide_rect = out.expand(pipeline.guide_radius()).intersect(&frame);
-    let den_rect = out.expand(params.patch_radius).intersect(&frame);
-    let guides: Vec<_> =
-        inputs.features.iter().map(|f| features::prepare(f, &gs, frame, guide_rect, den_rect)).collect();
-
-    let mut results = nlmeans::nlmeans(&jobs, &guides, frame, out, &params.main_settings());
-    if inputs.layers.is_empty() {
-        Ok(Denoised { colour: results.pop().expect("one job"), layers: Vec::new(), repaired })
-    } else {
-        let mut colour: Vec<Plane> = results[0].clone();
-        for layer in &results[1..] {
-            for (acc, p) in colour.iter_mut().zip(layer) {
-                for (a, v) in acc.data_mut().iter_mut().zip(p.data()) {
-                    *a += *v;
-                }
-            }
-        }
-        Ok(Denoised { colour, layers: results, repaired })
-    }
+/// The buffers filtered as jobs: the light layers, or else the beauty.
+fn buffers(inputs: &FrameInputs) -> Vec<&Buffer> {
+    if inputs.layers.is_empty() { vec![&inputs.colour] } else { inputs.layers.iter().collect() }
 }

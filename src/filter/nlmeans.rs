@@ -98,13 +98,34 @@ pub fn nlmeans(
     out: Rect,
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
-    // Blocks of (nearly) equal size: no sliver block whose borders cost
-    // more than its rows (the grid does not change a bit of the result).
-    let blocks = out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H));
-    let results: Vec<Vec<Vec<Plane>>> = blocks.par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
+    let results: Vec<_> = blocks(out).par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
+    assemble(jobs, out, results)
+}
+
+/// The blocks `out` is cut into: the kernel's unit of work, filtered
+/// independently by [`nlmeans_block`] in any order and on any thread.
+/// Blocks of (nearly) equal size: no sliver block whose borders cost more
+/// than its rows (the grid does not change a bit of the result).
+pub fn blocks(out: Rect) -> Vec<Rect> {
+    out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H))
+}
+
+/// One block of [`nlmeans`]: per job, one plane per channel over `block`.
+pub fn nlmeans_block(
+    jobs: &[Job<'_>],
+    features: &[GuideFeature],
+    frame: Rect,
+    block: Rect,
+    s: &NlmSettings,
+) -> Vec<Vec<Plane>> {
+    filter_block(jobs, features, frame, block, s)
+}
+
+/// The blocks' results ([`nlmeans_block`], any order) pasted into planes over `out`.
+pub fn assemble(jobs: &[Job<'_>], out: Rect, blocks: impl IntoIterator<Item = Vec<Vec<Plane>>>) -> Vec<Vec<Plane>> {
     let mut outputs: Vec<Vec<Plane>> =
         jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
-    for block in results {
+    for block in blocks {
         for (job_out, block_job) in outputs.iter_mut().zip(block) {
             for (plane, part) in job_out.iter_mut().zip(block_job) {
                 plane.paste(&part);
