@@ -4,7 +4,9 @@
 //! [`RowSource`]) produces, for each band, the filter's channels over the band
 //! plus the halo above and below, and the other channels over the band; the
 //! **filter** stage cuts the band into tiles and filters them in parallel
-//! (rayon), each tile reading only `(tile ⊕ halo) ∩ frame`; the **writer**
+//! (rayon), each tile reading only `(tile ⊕ halo) ∩ frame`, with up to
+//! [`BandPlan::bands_in_flight`] bands' tiles queued at once (no barrier at
+//! a band's end); the **writer**
 //! hands complete rows, in increasing y, to the [`RowSink`]. Bounded
 //! `crossbeam-channel` queues connect the stages, so a slow stage holds the
 //! others back and memory stays within the [`budget`]. Because every filter
@@ -16,7 +18,7 @@ pub mod synthetic;
 
 use std::borrow::Cow;
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -110,6 +112,11 @@ pub struct StreamReport {
     pub filter_time: Duration,
     /// Time the writer spent handing rows to the sink.
     pub write_time: Duration,
+    /// Time the workers spent in the NL-means kernel's blocks, summed over
+    /// threads: over `threads x` the run's wall time, the share of the
+    /// workers' time in the kernel (the rest is the stages before it, the
+    /// tiles' copies, and waits).
+    pub kernel_time: Duration,
     /// Pixels that had an unusable input sample (NaN, infinite, out of
     /// range) repaired before filtering (`filter::repair`).
     pub repaired: usize,
@@ -118,6 +125,7 @@ pub struct StreamReport {
 /// What the filter stage counts.
 #[derive(Default)]
 struct FilterCounters {
+    kernel: Duration,
     tiles: usize,
     filtered_px: usize,
     repaired: usize,
@@ -266,6 +274,7 @@ pub fn denoise_stream(
         read_time: Duration::ZERO,
         filter_time: Duration::ZERO,
         write_time: Duration::ZERO,
+        kernel_time: Duration::ZERO,
         repaired: 0,
     };
     let names_ref = &names;
@@ -297,8 +306,17 @@ pub fn denoise_stream(
         // at once, so the next band's tiles start while the last tiles of a band
         // finish (no thread waits at a band's end); bands leave in order.
         let filter = s.spawn(move || {
-            let ctx =
-                BandCtx { frame, halo, plan: &plan, roles, params, names: names_ref, cp: cp_ref, half: opts.half };
+            let ctx = BandCtx {
+                frame,
+                halo,
+                plan: &plan,
+                roles,
+                params,
+                names: names_ref,
+                cp: cp_ref,
+                half: opts.half,
+                kernel_ns: AtomicU64::new(0),
+            };
             let mut counters = FilterCounters::default();
             let (done_px, cancel) = (AtomicUsize::new(0), AtomicBool::new(false));
             let (done_px, cancel) = (&done_px, &cancel);
@@ -353,6 +371,7 @@ pub fn denoise_stream(
                 // tiles are skipped, and the scope waits for them to return.
                 cancel.store(true, Ordering::Relaxed);
             });
+            counters.kernel = Duration::from_nanos(ctx.kernel_ns.load(Ordering::Relaxed));
             (busy.total, counters)
         });
         // Writer (this thread).
@@ -384,17 +403,19 @@ pub fn denoise_stream(
     report.tiles = counters.tiles;
     report.halo_overhead = counters.filtered_px as f64 / frame.area().max(1) as f64;
     report.repaired = counters.repaired;
+    report.kernel_time = counters.kernel;
     report.write_time = write_res?;
     let t = Instant::now();
     sink.finish()?;
     report.write_time += t.elapsed();
     info!(
-        "streamed {} bands, {} tiles: read {:.2}s, filter {:.2}s, write {:.2}s (stage busy times; stages overlap); halo recomputation x{:.3}",
+        "streamed {} bands, {} tiles: read {:.2}s, filter {:.2}s, write {:.2}s (stage busy times; stages overlap); kernel {:.2}s over all threads; halo recomputation x{:.3}",
         report.bands,
         report.tiles,
         report.read_time.as_secs_f64(),
         report.filter_time.as_secs_f64(),
         report.write_time.as_secs_f64(),
+        report.kernel_time.as_secs_f64(),
         report.halo_overhead
     );
     info!("{} pixels had NaN, infinite or out-of-range inputs and were repaired", report.repaired);
@@ -411,6 +432,8 @@ struct BandCtx<'a> {
     names: &'a [String],
     cp: &'a ChannelPlan,
     half: bool,
+    /// Nanoseconds the workers spent in kernel blocks, summed.
+    kernel_ns: AtomicU64,
 }
 
 /// A band being filtered, shared by its tile tasks.
@@ -599,7 +622,9 @@ fn start_tile<'s>(
         let work = Arc::clone(&work);
         scope.spawn(move |_| {
             if !work.report.2.load(Ordering::Relaxed) {
+                let t = Instant::now();
                 let r = work.region.filter_block(block);
+                ctx.kernel_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
                 if let Ok(mut results) = work.results.lock() {
                     results[i] = Some(r);
                 }
