@@ -457,7 +457,7 @@ impl<'a> PreparedRegion<'a> {
     /// Filter one of [`blocks`](Self::blocks): per job (the beauty, or each
     /// light layer), one plane per channel over `block`.
     pub fn filter_block(&self, block: Rect) -> Vec<Vec<Plane>> {
-        nlmeans::nlmeans_block(&self.jobs(), &self.guides, self.frame, block, &self.settings)
+        nlmeans::filter_block(&self.jobs(), &self.guides, self.frame, block, &self.settings)
     }
 
     /// The output from every block's result (in any order).

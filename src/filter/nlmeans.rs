@@ -103,25 +103,14 @@ pub fn nlmeans(
 }
 
 /// The blocks `out` is cut into: the kernel's unit of work, filtered
-/// independently by [`nlmeans_block`] in any order and on any thread.
+/// independently by [`filter_block`] in any order and on any thread.
 /// Blocks of (nearly) equal size: no sliver block whose borders cost more
 /// than its rows (the grid does not change a bit of the result).
 pub fn blocks(out: Rect) -> Vec<Rect> {
     out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H))
 }
 
-/// One block of [`nlmeans`]: per job, one plane per channel over `block`.
-pub fn nlmeans_block(
-    jobs: &[Job<'_>],
-    features: &[GuideFeature],
-    frame: Rect,
-    block: Rect,
-    s: &NlmSettings,
-) -> Vec<Vec<Plane>> {
-    filter_block(jobs, features, frame, block, s)
-}
-
-/// The blocks' results ([`nlmeans_block`], any order) pasted into planes over `out`.
+/// The blocks' results ([`filter_block`], any order) pasted into planes over `out`.
 pub fn assemble(jobs: &[Job<'_>], out: Rect, blocks: impl IntoIterator<Item = Vec<Vec<Plane>>>) -> Vec<Vec<Plane>> {
     let mut outputs: Vec<Vec<Plane>> =
         jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
@@ -176,8 +165,9 @@ impl ScratchShape {
     }
 }
 
-/// Filter one block with the kernel compiled for the current [`simd::Tier`].
-fn filter_block(
+/// One block of [`nlmeans`] (one of [`blocks`]) with the kernel compiled
+/// for the current [`simd::Tier`]: per job, one plane per channel over `block`.
+pub fn filter_block(
     jobs: &[Job<'_>],
     features: &[GuideFeature],
     frame: Rect,
