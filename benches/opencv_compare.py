@@ -8,7 +8,8 @@ memory. Ours, with the same thread count: `nldenoise denoise --layers auto` on
 the EXR (the full default filter: albedo/normal/depth features and the direct
 and indirect light layers, file in and out), and the same frame's filter from
 memory (examples/timing: colour-only, and full). All are run alternately,
-ROUNDS times; the medians and the ratios to OpenCV are printed.
+ROUNDS times; the medians, the ratios to OpenCV, and each round's own
+ratios (runs of the same minutes) are printed.
 """
 import statistics
 import subprocess
