@@ -235,6 +235,28 @@ fn plan_with(
     Ok((halo, plan, threads))
 }
 
+/// The row bands a frame streams in, none taller than `rows`: a quarter
+/// band first and last, and the rows between cut into bands of (nearly)
+/// equal height. Until the first band is read, no core filters, and after
+/// the last band is filtered, its rows are still to be encoded: thin end
+/// bands shorten both waits. A frame of at most `rows` rows is one band,
+/// and so are the ends when `rows` is under 64 (the memory-bounded plans'
+/// short bands, whose quarters would cost more in borders than they save).
+/// The bands do not change a bit of the output.
+fn stream_bands(frame: Rect, rows: usize) -> Vec<Rect> {
+    let (h, rows) = (frame.height(), rows.max(1));
+    let end = rows.div_ceil(4);
+    if h <= rows || rows < 64 || h < 2 * end + 1 {
+        return frame.row_bands(rows);
+    }
+    let band = |y0: i64, y1: i64| Rect { y0, y1, ..frame };
+    let middle = band(frame.y0 + end as i64, frame.y1 - end as i64);
+    let mut out = vec![band(frame.y0, middle.y0)];
+    out.extend(middle.row_bands(crate::geom::even(middle.height(), rows)));
+    out.push(band(middle.y1, frame.y1));
+    out
+}
+
 /// Denoise a frame from `source` to `sink` in bounded memory.
 pub fn denoise_stream(
     source: &mut dyn RowSource,
@@ -260,7 +282,7 @@ pub fn denoise_stream(
     );
     let pool =
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::Internal(e.to_string()))?;
-    let bands = frame.row_bands(plan.band_rows);
+    let bands = stream_bands(frame, plan.band_rows);
     let n_bands = bands.len();
 
     let (in_tx, in_rx) = bounded::<Result<BandIn, Error>>(plan.queue_depth);
@@ -659,4 +681,39 @@ fn finish_tile(work: &TileWork<'_>, ctx: &BandCtx<'_>) {
         Ok(())
     })();
     let _ = work.report.0.send(res);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bands tile the frame in order, each between 1 and `rows` rows.
+    fn check(frame: Rect, rows: usize) -> Vec<usize> {
+        let bands = stream_bands(frame, rows);
+        let mut y = frame.y0;
+        for b in &bands {
+            assert_eq!((b.x0, b.x1, b.y0), (frame.x0, frame.x1, y), "{bands:?}");
+            assert!(b.y1 > b.y0 && b.height() <= rows, "{bands:?}");
+            y = b.y1;
+        }
+        assert_eq!(y, frame.y1);
+        bands.iter().map(Rect::height).collect()
+    }
+
+    #[test]
+    fn stream_bands_thin_at_both_ends() {
+        let f = |h| Rect::from_origin_size(-5, 7, 100, h);
+        assert_eq!(check(f(1080), 360), [90, 300, 300, 300, 90]);
+        assert_eq!(check(f(2160), 432), [108, 389, 389, 389, 389, 388, 108]);
+        // One band at most `rows` tall, or ends that would not leave a middle.
+        assert_eq!(check(f(360), 360), [360]);
+        assert_eq!(check(f(361), 360), [90, 181, 90]);
+        // Short memory-bounded bands are not cut further.
+        assert_eq!(check(f(100), 32), [32, 32, 32, 4]);
+        for h in 1..300 {
+            for rows in [1, 16, 63, 64, 65, 100, 128, 299] {
+                check(f(h), rows);
+            }
+        }
+    }
 }
