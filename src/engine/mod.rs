@@ -235,18 +235,22 @@ fn plan_with(
     Ok((halo, plan, threads))
 }
 
+/// The thinnest first or last band [`stream_bands`] cuts.
+const END_BAND_MIN: usize = 64;
+
 /// The row bands a frame streams in, none taller than `rows`: a quarter
-/// band first and last, and the rows between cut into bands of (nearly)
-/// equal height. Until the first band is read, no core filters, and after
-/// the last band is filtered, its rows are still to be encoded: thin end
-/// bands shorten both waits. A frame of at most `rows` rows is one band,
-/// and so are the ends when `rows` is under 64 (the memory-bounded plans'
-/// short bands, whose quarters would cost more in borders than they save).
-/// The bands do not change a bit of the output.
+/// band (at least [`END_BAND_MIN`] rows) first and last, and the rows
+/// between cut into bands of (nearly) equal height. Until the first band is
+/// read, no core filters, and after the last band is filtered, its rows are
+/// still to be encoded: thin end bands shorten both waits. A frame of at
+/// most `rows` rows is one band; bands under twice [`END_BAND_MIN`] (the
+/// memory-bounded plans' short bands) are not cut thinner, as a thin band's
+/// borders (the kernel's `4f + dy` extra distance rows, the halo) would cost
+/// more than they save. The bands do not change a bit of the output.
 fn stream_bands(frame: Rect, rows: usize) -> Vec<Rect> {
     let (h, rows) = (frame.height(), rows.max(1));
-    let end = rows.div_ceil(4);
-    if h <= rows || rows < 64 || h < 2 * end + 1 {
+    let end = rows.div_ceil(4).max(END_BAND_MIN);
+    if h <= rows || rows < 2 * END_BAND_MIN {
         return frame.row_bands(rows);
     }
     let band = |y0: i64, y1: i64| Rect { y0, y1, ..frame };
@@ -708,8 +712,11 @@ mod tests {
         // One band at most `rows` tall, or ends that would not leave a middle.
         assert_eq!(check(f(360), 360), [360]);
         assert_eq!(check(f(361), 360), [90, 181, 90]);
-        // Short memory-bounded bands are not cut further.
+        // Short memory-bounded bands are not cut further; short plans' ends
+        // are at least 64 rows.
         assert_eq!(check(f(100), 32), [32, 32, 32, 4]);
+        assert_eq!(check(f(300), 127), [127, 127, 46]);
+        assert_eq!(check(f(300), 128), [64, 86, 86, 64]);
         for h in 1..300 {
             for rows in [1, 16, 63, 64, 65, 100, 128, 299] {
                 check(f(h), rows);
