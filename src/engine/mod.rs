@@ -709,7 +709,7 @@ mod tests {
         let f = |h| Rect::from_origin_size(-5, 7, 100, h);
         assert_eq!(check(f(1080), 360), [90, 300, 300, 300, 90]);
         assert_eq!(check(f(2160), 432), [108, 389, 389, 389, 389, 388, 108]);
-        // One band at most `rows` tall, or ends that would not leave a middle.
+        // A frame of at most `rows` rows is one band.
         assert_eq!(check(f(360), 360), [360]);
         assert_eq!(check(f(361), 360), [90, 181, 90]);
         // Short memory-bounded bands are not cut further; short plans' ends

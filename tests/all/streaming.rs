@@ -178,6 +178,29 @@ fn streaming_equals_whole_frame_on_thin_frames_and_default_parameters() {
     check(&case, &[(16, 2), (64, 2)]);
 }
 
+#[test]
+fn streaming_with_thin_end_bands_equals_whole_frame() {
+    // Bands of 150 rows, which the engine cuts 64, 108, 108, 106, 64: thin
+    // first and last bands (`engine::stream_bands`), the rest evened out.
+    let case = Case {
+        frame: Rect::from_origin_size(-3, 5, 24, 450),
+        kinds: ALL_KINDS[3],
+        params: small_params(3, 1),
+        half: false,
+        layout: WriteOptions::default(),
+    };
+    check(&case, &[(200, 1), (200, 2), (150, 3)]);
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("in.exr"), dir.path().join("out.exr"));
+    let inputs = frame_inputs(case.frame, 99, case.kinds);
+    exrio::write_frame(&input, &to_frame(&inputs, case.frame, false), &case.layout).unwrap();
+    let so = StreamOptions { tile_size: 200, threads: 2, memory_limit: 1 << 30, ..StreamOptions::default() };
+    let opts = role_options(case.kinds);
+    let (_, stream) =
+        api::denoise_file_streaming(&input, &out, &opts, &case.params, &so, OutputCompression::Zip).unwrap();
+    assert_eq!((stream.plan.band_rows, stream.bands), (150, 5));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 12, .. ProptestConfig::default() })]
     #[test]
