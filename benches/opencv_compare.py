@@ -17,38 +17,24 @@ import sys
 import time
 
 import cv2
-import numpy as np
-import OpenEXR
+
+from opencv_common import memory_seconds, opencv_seconds, tone_mapped_bgr8
 
 exr, binary, threads, rounds, timing = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 extra = sys.argv[6:] or ["--layers", "auto"]
-
-with OpenEXR.File(exr, separate_channels=True) as f:
-    ch = f.channels()
-    rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
-img8 = np.clip(255.0 * (np.maximum(rgb, 0) / (1.0 + np.maximum(rgb, 0))) ** (1 / 2.2) + 0.5, 0, 255).astype(np.uint8)
-bgr8 = np.ascontiguousarray(img8[..., ::-1])
-cv2.setNumThreads(threads)
-
-
-
-def memory_run(mode):
-    out = subprocess.run([timing, mode, "1920", "1080", str(threads), "10", "1"], check=True, capture_output=True, text=True)
-    return float(out.stdout.strip().split(",")[5])
+bgr8 = tone_mapped_bgr8(exr)
 
 
 ours, theirs, mem_colour, mem_full = [], [], [], []
 for _ in range(rounds):
-    t = time.perf_counter()
-    cv2.fastNlMeansDenoisingColored(bgr8, None, h=10, hColor=10, templateWindowSize=7, searchWindowSize=21)
-    theirs.append(time.perf_counter() - t)
+    theirs.append(opencv_seconds(bgr8, threads))
     t = time.perf_counter()
     subprocess.run([binary, "-q", "denoise", exr, "-o", "/tmp/opencv_compare_out.exr", "--threads", str(threads), *extra], check=True)
     ours.append(time.perf_counter() - t)
-    mem_colour.append(memory_run("colour"))
-    mem_full.append(memory_run("full"))
+    mem_colour.append(memory_seconds(timing, "colour", threads))
+    mem_full.append(memory_seconds(timing, "full", threads))
 
-h, w = rgb.shape[:2]
+h, w = bgr8.shape[:2]
 mo, mt = statistics.median(ours), statistics.median(theirs)
 print(f"frame {w}x{h}, {threads} threads, {rounds} alternating rounds, OpenCV {cv2.__version__}")
 print(f"OpenCV fastNlMeansDenoisingColored (8-bit, r=10, f=3): median {mt:.2f} s  {['%.2f' % x for x in theirs]}")

@@ -1,0 +1,33 @@
+"""What benches/opencv_compare.py and benches/opencv_threads.py share: the
+frame as OpenCV gets it, OpenCV's timed call, and a timed run of our filter
+from memory (examples/timing)."""
+import subprocess
+import time
+
+import cv2
+import numpy as np
+import OpenEXR
+
+
+def tone_mapped_bgr8(exr):
+    """The EXR's R, G, B tone-mapped to 8 bits (x/(1+x), gamma 1/2.2), in OpenCV's BGR order."""
+    with OpenEXR.File(exr, separate_channels=True) as f:
+        ch = f.channels()
+        rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
+    x = np.maximum(rgb, 0)
+    img8 = np.clip(255.0 * (x / (1.0 + x)) ** (1 / 2.2) + 0.5, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(img8[..., ::-1])
+
+
+def opencv_seconds(bgr8, threads):
+    """One fastNlMeansDenoisingColored run (searchWindowSize=21, templateWindowSize=7: r=10, f=3)."""
+    cv2.setNumThreads(threads)
+    t = time.perf_counter()
+    cv2.fastNlMeansDenoisingColored(bgr8, None, h=10, hColor=10, templateWindowSize=7, searchWindowSize=21)
+    return time.perf_counter() - t
+
+
+def memory_seconds(timing, mode, threads):
+    """One examples/timing run of MODE on the 1920x1080 synthetic frame, r=10."""
+    out = subprocess.run([timing, mode, "1920", "1080", str(threads), "10", "1"], check=True, capture_output=True, text=True)
+    return float(out.stdout.strip().split(",")[5])
