@@ -8,9 +8,11 @@
 //! - `peak_fma_f32` (AVX2 and AVX-512 tiers): one fused multiply-add, 1
 //!   operation (2 flops) per lane per step.
 //!
-//! - `mix_recip_exp2`: the filter's own `kernels::recip` and
-//!   `kernels::exp2_weight` on rows that stay in L1, `exp2_weight(recip(a) *
-//!   b)` per sample, compiled for the tier: 18 counted operations per sample
+//! - `mix_recip_exp2`: a Newton reciprocal (`newton_recip` below, the
+//!   filter's until session 31, when it took up an IEEE division) and the
+//!   filter's `kernels::exp2_weight` on rows that stay in L1,
+//!   `exp2_weight(newton_recip(a) * b)` per sample, compiled for the tier:
+//!   18 counted operations per sample
 //!   (the reciprocal's 6 fused multiply-adds, the multiply, the weight's 11;
 //!   integer bit operations not counted, as in docs/performance.md). Each
 //!   sample's operations depend on one another, as in the filter's loops:
@@ -20,8 +22,9 @@
 //!   (each operation on a whole 64-sample chunk before the next, as the
 //!   filter's `weight_row` does): the same operations, in another order.
 //! - `distance_recip_div`: the colour distance's per-channel arithmetic over
-//!   rows in L1 (one thread), its reciprocal as `kernels::recip` or as an
-//!   IEEE division; throughput in pixel-channels per second.
+//!   rows in L1 (one thread), its reciprocal as `newton_recip` or as the
+//!   IEEE division the filter uses since session 31; throughput in
+//!   pixel-channels per second.
 //! - `weights_row`: a row of guided weights over rows in L1 (one thread),
 //!   in the lanes form the portable and AVX2 tiers run or by
 //!   `kernels::weights_avx512` (the same bits); throughput in weights per
@@ -123,6 +126,18 @@ avx2_chains!(fma_chains_avx2, "avx2,fma", |v: &mut __m256, m, c| _mm256_fmadd_ps
 /// Samples of one row of the mix (3 x 4 KiB rows in L1) and its repetitions.
 const MIX_ROW: usize = 1024;
 const MIX_REPS: usize = 20_000;
+
+/// `1 / x` from add/mul only, the filter's reciprocal until session 31
+/// (docs/performance.md): a bit-level first guess refined by one third-order
+/// step and one Newton step (five fused multiply-adds), within 2.5e-7 of
+/// `1 / x` over `[1e-30, 1e37]`.
+#[inline(always)]
+fn newton_recip(x: f32) -> f32 {
+    let y = f32::from_bits(0x7EF3_11C3u32.wrapping_sub(x.to_bits()));
+    let e = (-x).mul_add(y, 1.0);
+    let y = y.mul_add(e.mul_add(e, e), y);
+    y.mul_add((-x).mul_add(y, 1.0), y)
+}
 /// Counted operations per sample of the mix (see the module's docs).
 const MIX_OPS: usize = 18;
 
@@ -133,7 +148,7 @@ const MIX_OPS: usize = 18;
 /// before the next.
 #[inline(always)]
 fn mix_rows<const LOCKSTEP: bool>(reps: usize) -> f32 {
-    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight, exp2_weight_lanes, recip};
+    use nldenoise::filter::kernels::{CHUNK_AVX512 as W, exp2_weight, exp2_weight_lanes};
     let a: Vec<f32> = (0..MIX_ROW).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
     let b: Vec<f32> = (0..MIX_ROW).map(|i| -((i % 89) as f32) * 0.1).collect();
     let mut out = vec![0.0f32; MIX_ROW];
@@ -143,13 +158,13 @@ fn mix_rows<const LOCKSTEP: bool>(reps: usize) -> f32 {
             for ((o, x), y) in out.chunks_exact_mut(W).zip(a.chunks_exact(W)).zip(b.chunks_exact(W)) {
                 let mut t = [0.0f32; W];
                 for k in 0..W {
-                    t[k] = recip(x[k]) * y[k];
+                    t[k] = newton_recip(x[k]) * y[k];
                 }
                 o.copy_from_slice(&exp2_weight_lanes(t));
             }
         } else {
             for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
-                *o = exp2_weight(recip(x) * y);
+                *o = exp2_weight(newton_recip(x) * y);
             }
         }
         black_box(&mut out);
@@ -160,11 +175,10 @@ fn mix_rows<const LOCKSTEP: bool>(reps: usize) -> f32 {
 /// The colour distance's per-channel arithmetic (as
 /// `kernels::colour_distance_pair_rgb` with `alpha = 1`, one direction),
 /// three channels into 64-sample chunks, over rows in L1, with the
-/// denominator's reciprocal as `kernels::recip` or, with `DIV`, as an IEEE
-/// division (also the same bits on every tier, but not the filter's).
+/// denominator's reciprocal as [`newton_recip`] or, with `DIV`, as the IEEE
+/// division the filter uses (both the same bits on every tier).
 #[inline(always)]
 fn distance_rows<const DIV: bool>(reps: usize) -> f32 {
-    use nldenoise::filter::kernels::recip;
     let u: Vec<f32> = (0..3 * MIX_ROW + 64).map(|i| 0.5 + (i % 97) as f32 * 0.01).collect();
     let v: Vec<f32> = (0..3 * MIX_ROW + 64).map(|i| 0.01 + (i % 89) as f32 * 0.001).collect();
     let mut out = vec![0.0f32; MIX_ROW];
@@ -179,7 +193,7 @@ fn distance_rows<const DIV: bool>(reps: usize) -> f32 {
                     let d = up[k] - uq[k];
                     let m = if vq[k] < vp[k] { vq[k] } else { vp[k] };
                     let x = 0.2025f32.mul_add(vp[k] + vq[k], 1e-10);
-                    let r = if DIV { 1.0 / x } else { recip(x) };
+                    let r = if DIV { 1.0 / x } else { newton_recip(x) };
                     a[k] = (d * d - (vp[k] + m)).mul_add(r, a[k]);
                 }
             }

@@ -281,27 +281,6 @@ pub fn log2_distance_scale(channels: usize) -> f32 {
     -std::f32::consts::LOG2_E / channels as f32
 }
 
-/// `1 / x` for normal positive `x` in `[1e-30, 1e37]`, from add/mul only.
-///
-/// A bit-level first guess (`0x7EF311C3 - bits(x)`) refined by one
-/// third-order step `y + y (e + e^2)` with `e = 1 - x y` (three fused
-/// multiply-adds; it cubes the relative error), then one Newton step
-/// `y + y e` (two; it squares it): within 8e-8 of `1 / x` over every
-/// mantissa of a binade and within 2.5e-7 over the range (both tested in
-/// `tests`). One operation fewer
-/// than three Newton steps (session 24, docs/performance.md). Unlike a
-/// division it vectorises at the full FMA rate (a division costs 5-10 times
-/// more per lane), and unlike `rcpps` it gives the same bits on every path.
-/// Every step scales exactly with `x`: `recip(x 2^k) = recip(x) 2^-k` while
-/// both stay normal (the guess's exponent moves by `k`, `e` is unchanged).
-#[inline(always)]
-pub fn recip(x: f32) -> f32 {
-    let y = f32::from_bits(0x7EF3_11C3u32.wrapping_sub(x.to_bits()));
-    let e = (-x).mul_add(y, 1.0);
-    let y = y.mul_add(e.mul_add(e, e), y);
-    y.mul_add((-x).mul_add(y, 1.0), y)
-}
-
 /// Box mean of radius `radius` of `src`, evaluated on `dst_rect`.
 ///
 /// The window of pixel `p` is `[p - radius, p + radius]^2 ∩ clip`; its samples
@@ -401,8 +380,9 @@ pub fn box_mean(
 /// the same with the roles of `vp` and `vq` swapped, `d2_c(p + n, p)`: the
 /// distance of pixel `p + n` for offset `-n`. The squared difference, the
 /// minimum, the denominator's sum and its reciprocal are symmetric and
-/// computed once; the division is a multiplication by [`recip`], and both the
-/// variance term's subtractions and the accumulation are fused multiply-adds.
+/// computed once; the reciprocal is an IEEE division (`1 / x`, correctly
+/// rounded on every path), and both the variance term's subtractions and
+/// the accumulation are fused multiply-adds.
 /// The variance term is subtracted in two steps, its shared part first:
 /// `e = d2 - alpha min(vp, vq)`, then `e - alpha vp` (and `e - alpha vq`
 /// for `mir`), one operation fewer than forming `vp + min` and `vq + min`
@@ -426,7 +406,7 @@ pub fn accumulate_colour_distance_pair(
         let d = up[i] - uq[i];
         let d2 = d * d;
         let m = if vq[i] < vp[i] { vq[i] } else { vp[i] };
-        let r = recip(k2.mul_add(vp[i] + vq[i], eps));
+        let r = 1.0 / k2.mul_add(vp[i] + vq[i], eps);
         let e = (-alpha).mul_add(m, d2);
         fwd[i] = (-alpha).mul_add(vp[i], e).mul_add(r, fwd[i]);
         mir[i] = (-alpha).mul_add(vq[i], e).mul_add(r, mir[i]);
@@ -748,7 +728,7 @@ pub fn colour_distance_pair_rgb<const W: usize, const ALPHA_ONE: bool>(
         let d = up - uq;
         let d2 = d * d;
         let m = if vq < vp { vq } else { vp };
-        let r = recip(k2.mul_add(vp + vq, eps));
+        let r = 1.0 / k2.mul_add(vp + vq, eps);
         let e = variance_term::<ALPHA_ONE>(alpha, m, d2);
         (variance_term::<ALPHA_ONE>(alpha, vp, e).mul_add(r, a), variance_term::<ALPHA_ONE>(alpha, vq, e).mul_add(r, b))
     };
@@ -1794,34 +1774,37 @@ mod tests {
     }
 
     #[test]
-    fn recip_is_within_bound_over_the_range_used() {
-        let mut worst = 0.0f64;
-        let mut x = 1e-30f32;
-        while x < 1e37 {
-            for m in [1.0f32, 1.1, 1.37, 1.5, 1.73, 1.99] {
-                let v = x * m;
-                let got = recip(v) as f64;
-                let want = 1.0 / v as f64;
-                worst = worst.max(((got - want) / want).abs());
-            }
-            x *= 1.013;
+    fn the_distance_pair_divides_and_scales_exactly_by_powers_of_two() {
+        // The reciprocal is a correctly rounded division, the same on every
+        // path, and the kernel relies on it scaling exactly: it passes
+        // `eps 2^-s` and `k^2 2^-s` to get the distances times `2^s`
+        // (`nlmeans::distance_rows`). Checked on the pair kernel itself, so
+        // an approximate reciprocal put back in would fail here.
+        let n = 37;
+        let up: Vec<f32> = (0..n).map(|i| 0.3 + (i * 7919 % 101) as f32 * 0.013).collect();
+        let uq: Vec<f32> = (0..n).map(|i| 0.2 + (i * 104_729 % 97) as f32 * 0.017).collect();
+        let vp: Vec<f32> = (0..n).map(|i| 1e-4 + (i * 31 % 89) as f32 * 3.1e-4).collect();
+        let vq: Vec<f32> = (0..n).map(|i| 2e-4 + (i * 17 % 83) as f32 * 2.9e-4).collect();
+        let (alpha, eps, k2) = (1.0f32, 1e-10f32, 0.45f32 * 0.45);
+        let run = |scale: f32| {
+            let (mut fwd, mut mir) = (vec![0.0f32; n], vec![0.0f32; n]);
+            accumulate_colour_distance_pair(&mut fwd, &mut mir, &up, &uq, &vp, &vq, alpha, eps * scale, k2 * scale);
+            (fwd, mir)
+        };
+        let (fwd, mir) = run(1.0);
+        for i in 0..n {
+            // The division itself: the reciprocal of the rounded denominator.
+            let r = 1.0 / k2.mul_add(vp[i] + vq[i], eps);
+            let m = vp[i].min(vq[i]);
+            let e = (-alpha).mul_add(m, (up[i] - uq[i]) * (up[i] - uq[i]));
+            assert_eq!(fwd[i].to_bits(), ((-alpha).mul_add(vp[i], e) * r).to_bits(), "fwd {i}");
+            assert_eq!(mir[i].to_bits(), ((-alpha).mul_add(vq[i], e) * r).to_bits(), "mir {i}");
         }
-        // Every mantissa of one binade (the error pattern repeats per binade).
-        let mut binade = 0.0f64;
-        for bits in 1.0f32.to_bits()..2.0f32.to_bits() {
-            let v = f32::from_bits(bits);
-            binade = binade.max(((recip(v) as f64 - 1.0 / v as f64) * v as f64).abs());
-        }
-        assert!(binade < 8e-8, "worst relative error over a binade {binade}");
-        worst = worst.max(binade);
-        assert!(worst < 2.5e-7, "worst relative error {worst}");
-        // Exactly homogeneous under powers of two (the kernel folds the
-        // distances' box scale `2^s` into the denominator).
-        for bits in (1.0f32.to_bits()..2.0f32.to_bits()).step_by(997) {
-            let v = f32::from_bits(bits);
-            for k in [-40, -13, -1, 1, 13, 40] {
-                let scaled = recip(v * 2f32.powi(k));
-                assert_eq!(scaled.to_bits(), (recip(v) * 2f32.powi(-k)).to_bits(), "x = {v}, k = {k}");
+        for k in [-40, -13, -1, 1, 13, 40] {
+            let (f2, m2) = run(2f32.powi(-k));
+            for i in 0..n {
+                assert_eq!(f2[i].to_bits(), (fwd[i] * 2f32.powi(k)).to_bits(), "fwd {i}, k = {k}");
+                assert_eq!(m2[i].to_bits(), (mir[i] * 2f32.powi(k)).to_bits(), "mir {i}, k = {k}");
             }
         }
     }

@@ -99,7 +99,7 @@ impl Params {
             }
         };
         // Bounds that keep every intermediate of the distance finite and
-        // normal (see `kernels::recip` and `repair`).
+        // normal (see `nlmeans::distance_rows` and `repair`).
         if self.strength > 1000.0 || self.feature_prefilter.strength > 1000.0 {
             return Err(Error::InvalidParameter(format!(
                 "strength must be at most 1000, got {}",

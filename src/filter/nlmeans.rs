@@ -690,9 +690,8 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
 /// the distances times `2^s` exactly: the denominator `eps + k^2 (vp + vq)`
 /// is scaled by `2^-s` with no rounding (its fused multiply-add rounds the
 /// scaled exact value, a normal number while `eps 2^-s` is, as SPEC's
-/// `eps = 1e-10` is), `kernels::recip` of it is its reciprocal times `2^s`
-/// exactly (each of its steps scales: the seed's exponent, then each
-/// Newton step's terms), and so is each term and sum after it.
+/// `eps = 1e-10` is), its reciprocal (a correctly rounded division) is the
+/// unscaled one times `2^s` exactly, and so is each term and sum after it.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn distance_rows<const W: usize>(
