@@ -612,15 +612,49 @@ pub unsafe fn taps7_push_avx512<const CLAMP: bool, const CASE: u8>(
             let (rp, sp) = (ring.as_mut_ptr().add(i), run.as_mut_ptr().add(i));
             let s = match CASE {
                 0 => v,
-                1 => _mm512_add_epi32(_mm512_maskz_loadu_epi32(k, sp), v),
-                _ => _mm512_sub_epi32(
-                    _mm512_add_epi32(_mm512_maskz_loadu_epi32(k, sp), v),
-                    _mm512_maskz_loadu_epi32(k, rp),
-                ),
+                1 => _mm512_add_epi32(masked::load_epi32(k, sp), v),
+                _ => _mm512_sub_epi32(_mm512_add_epi32(masked::load_epi32(k, sp), v), masked::load_epi32(k, rp)),
             };
-            _mm512_mask_storeu_epi32(rp, k, v);
-            _mm512_mask_storeu_epi32(sp, k, s);
+            masked::store_epi32(rp, k, v);
+            masked::store_epi32(sp, k, s);
         }
+    }
+}
+
+/// Masked loads and stores of 16 lanes that run as plain ones when the mask
+/// keeps every lane (a row's interior), for [`taps7_push_avx512`]. On AMD's
+/// Zen 4 the pushes with plain loads and stores inside their rows took
+/// 0.95-0.97x the full filter's time (session 31, docs/performance.md);
+/// the same change in the weights' and the guides' loops as well measured
+/// no further gain. The same lanes are read and written either way, so the
+/// same bits.
+///
+/// # Safety
+/// The CPU must support AVX-512F, and the lanes `k` keeps must lie inside
+/// the row `p` points into.
+#[cfg(target_arch = "x86_64")]
+mod masked {
+    use std::arch::x86_64::*;
+
+    /// `_mm512_maskz_loadu_ps`.
+    #[inline(always)]
+    pub(super) unsafe fn load_ps(k: __mmask16, p: *const f32) -> __m512 {
+        // SAFETY: the caller's (see the module).
+        unsafe { if k == u16::MAX { _mm512_loadu_ps(p) } else { _mm512_maskz_loadu_ps(k, p) } }
+    }
+
+    /// `_mm512_maskz_loadu_epi32`.
+    #[inline(always)]
+    pub(super) unsafe fn load_epi32(k: __mmask16, p: *const i32) -> __m512i {
+        // SAFETY: the caller's (see the module).
+        unsafe { if k == u16::MAX { _mm512_loadu_si512(p.cast()) } else { _mm512_maskz_loadu_epi32(k, p) } }
+    }
+
+    /// `_mm512_mask_storeu_epi32`.
+    #[inline(always)]
+    pub(super) unsafe fn store_epi32(p: *mut i32, k: __mmask16, v: __m512i) {
+        // SAFETY: the caller's (see the module).
+        unsafe { if k == u16::MAX { _mm512_storeu_si512(p.cast(), v) } else { _mm512_mask_storeu_epi32(p, k, v) } }
     }
 }
 
@@ -662,7 +696,7 @@ impl<'a> Taps7<'a> {
         };
         // SAFETY: the mask selects only lanes inside `src`; masked-off
         // lanes are not accessed (avx512f: see `new`).
-        unsafe { _mm512_maskz_loadu_ps(k, src.as_ptr().wrapping_add(at)) }
+        unsafe { masked::load_ps(k, src.as_ptr().wrapping_add(at)) }
     }
 
     /// The sums of outputs `i..i + 16`, `i` the chunk after the previous call's (0 first).
