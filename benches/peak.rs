@@ -14,7 +14,9 @@
 //!   `exp2_weight(newton_recip(a) * b)` per sample, compiled for the tier:
 //!   18 counted operations per sample
 //!   (the reciprocal's 6 fused multiply-adds, the multiply, the weight's 11;
-//!   integer bit operations not counted, as in docs/performance.md). Each
+//!   integer bit operations not counted, as in docs/performance.md; the
+//!   reciprocal has had five since session 24, so the rate reported is
+//!   18/17 of the operations run). Each
 //!   sample's operations depend on one another, as in the filter's loops:
 //!   the rate a row loop of the filter's arithmetic reaches with no memory
 //!   traffic beyond L1, below the independent chains' peak.
@@ -138,6 +140,7 @@ fn newton_recip(x: f32) -> f32 {
     let y = y.mul_add(e.mul_add(e, e), y);
     y.mul_add((-x).mul_add(y, 1.0), y)
 }
+
 /// Counted operations per sample of the mix (see the module's docs).
 const MIX_OPS: usize = 18;
 
