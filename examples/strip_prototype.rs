@@ -33,7 +33,8 @@ mod strip {
 
     pub const F: usize = 3;
 
-    /// The kernel's `recip` (`kernels::recip`), 16 lanes.
+    /// The kernel's reciprocal of session 18, when this prototype was written
+    /// (a Newton form, `kernels::recip` until session 31), 16 lanes.
     #[target_feature(enable = "avx512f,fma")]
     #[inline]
     fn recip(x: __m512) -> __m512 {
