@@ -18,11 +18,17 @@ done
 # Thread scaling and linearity: 1080p and 4K on 1 and 2 threads, in
 # alternating rounds (ROUNDS, default 3), so that each ratio compares minima
 # taken over the same minutes of this shared, noisy machine.
+# Each of these lines also goes to target/scaling-rounds.csv with its round.
+rounds=target/scaling-rounds.csv
+: > "$rounds"
 for round in $(seq "${ROUNDS:-3}"); do
   for mode in colour full; do
     for threads in 2 1; do
-      $t $mode 1920 1080 $threads 10 1 | tee -a "$csv"
-      $t $mode 3840 2160 $threads 10 1 | tee -a "$csv"
+      for size in "1920 1080" "3840 2160"; do
+        line=$($t $mode $size $threads 10 1)
+        echo "$line" | tee -a "$csv"
+        echo "$round,$line" >> "$rounds"
+      done
     done
   done
 done
@@ -46,3 +52,20 @@ awk -F, 'NR > 1 && $5 == 10 && ($2 == 1920 || $2 == 3840) {
       printf "%s: 4K thread scaling %.2fx; 4K/1080p %.2f (2 threads), %.2f (1 thread)\n", md,
         m[md " 3840 1"] / m[md " 3840 2"], m[md " 3840 2"] / m[md " 1920 2"], m[md " 3840 1"] / m[md " 1920 1"] }
   }' "$csv" | sort
+# The same ratios from each round's own runs (adjacent in time), and their
+# medians: on a host whose speed swings from minute to minute, minima taken
+# minutes apart can pair a lucky run with an unlucky one.
+awk -F, '{ t[$1 " " $2 " " $3 " " $5] = $7; r[$1] = 1 }
+  function median(v, n,   i, j, x) {
+    for (i = 2; i <= n; i++) { x = v[i]; for (j = i - 1; j >= 1 && v[j] > x; j--) v[j + 1] = v[j]; v[j + 1] = x }
+    return n % 2 ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
+  }
+  END {
+    split("colour full", modes, " ")
+    for (i = 1; i <= 2; i++) { md = modes[i]; n = 0; line = ""
+      for (k = 1; k in r; k++) { n++
+        s[n] = t[k " " md " 3840 1"] / t[k " " md " 3840 2"]
+        l[n] = t[k " " md " 3840 2"] / t[k " " md " 1920 2"]
+        line = line sprintf(" %.2f/%.2f", s[n], l[n]) }
+      printf "%s, rounds'"'"' medians: 4K thread scaling %.2fx; 4K/1080p %.2f (2 threads); each round (scaling/ratio):%s\n", md, median(s, n), median(l, n), line }
+  }' "$rounds"
