@@ -45,12 +45,14 @@ import collections, os, re, sys
 out, binary, mode, w, h, r = sys.argv[1], sys.argv[2], sys.argv[3], *map(int, sys.argv[4:])
 
 def counts(path):
-    """Executions per instruction address of `binary`'s code."""
-    n, ob, skip = collections.Counter(), "", False
+    """Executions per (instruction address, source file and line) of `binary`'s code."""
+    n, ob, fl, skip = collections.Counter(), "", "", False
     name = os.path.basename(binary)
     for line in open(path):
         if line.startswith("ob="):
             ob = line[3:].strip()
+        elif line.startswith(("fl=", "fi=", "fe=")):
+            fl = line[3:].strip()
         elif line.startswith("calls="):
             skip = True  # the next cost line is the call's inclusive cost
         elif line.startswith("0x"):
@@ -58,8 +60,8 @@ def counts(path):
                 skip = False
                 continue
             if os.path.basename(ob) == name:
-                addr, _line, ir = line.split()
-                n[int(addr, 16)] += int(ir)
+                addr, src, ir = line.split()
+                n[(int(addr, 16), f"{os.path.basename(fl)}:{src}")] += int(ir)
     return n
 
 # Every instruction of the binary: address -> (mnemonic, operands).
@@ -94,22 +96,22 @@ def lanes(mnemonic, operands):
     return 4
 
 def tally(n):
-    t = collections.Counter()
-    for addr, k in n.items():
+    """Lanes per category, flops, and operations per source line."""
+    t, by_line = collections.Counter(), collections.Counter()
+    for (addr, src), k in n.items():
         if addr not in insn:
             continue
         mn, ops = insn[addr]
         for cat, p in ARITH + OTHER:
             if p.match(mn):
                 t[cat] += k * lanes(mn, ops)
-                if cat == "fma":
-                    t["flops"] += 2 * k * lanes(mn, ops)
-                elif cat in dict(ARITH):
-                    t["flops"] += k * lanes(mn, ops)
+                if cat in dict(ARITH):
+                    by_line[src] += k * lanes(mn, ops)
+                    t["flops"] += (2 if cat == "fma" else 1) * k * lanes(mn, ops)
                 break
-    return t
+    return t, by_line
 
-a, b = tally(counts(os.path.join(out, f"cg.{r}"))), tally(counts(os.path.join(out, f"cg.0")))
+(a, a_lines), (b, b_lines) = tally(counts(os.path.join(out, f"cg.{r}"))), tally(counts(os.path.join(out, "cg.0")))
 offsets = (2 * r + 1) ** 2 - 1
 po = w * h * offsets
 # Pixel-offsets whose window the frame's borders leave whole, as a share.
@@ -126,4 +128,8 @@ for cat, _ in OTHER:
     v = (a[cat] - b[cat]) / po
     if v:
         print(f"  not counted: {cat} {v:.2f} per pixel-offset")
+print("  operations by innermost source line (an FMA shows as std's f32::mul_add):")
+lines = collections.Counter({k: (a_lines[k] - b_lines[k]) / po for k in a_lines})
+for src, v in lines.most_common(int(os.environ.get("TOP", "12"))):
+    print(f"  {v:7.2f}  {src}")
 EOF
