@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# How much of the thread-scaling shortfall is the host's: in each round, one
-# frame on one thread (alone), one frame on two threads (ours), and two
-# one-thread processes at once, pinned to cores 0 and 1 (independent
-# processes: no shared memory, locks or scheduling of ours between them).
+# How much of the thread-scaling shortfall is the engine's and how much the
+# machine's: in each round, one frame on one thread (alone), one frame on
+# two threads (ours), and two one-thread processes at once, pinned to cores
+# 0 and 1 (independent processes: no memory, locks or scheduling of the
+# engine's between them, only the machine: its shared caches and memory,
+# and its other tenants).
 #
 #   bash benches/host_scaling.sh [MODE] [WIDTH] [HEIGHT]   # default: full 3840 2160
 #   ROUNDS=N (default 3)
@@ -12,7 +14,9 @@
 #   ours  = one / two: our two-thread scaling;
 #   host  = 2 one / ((a + b) / 2), where a and b are the two processes' times:
 #           the scaling a perfect two-thread run would reach when each core is
-#           as slow as it is with the other core busy (the host's ceiling);
+#           as slow as it is while the other core runs the same kernel (the
+#           two-process ceiling: the machine's, for this kernel's memory traffic;
+#           `cargo bench --bench peak` gives it for arithmetic alone);
 #   share = ours / host: the part of that ceiling we reach.
 # Then the medians of the rounds' ratios. The rounds alternate so that each
 # ratio compares runs from the same minutes of this shared, noisy machine.
