@@ -112,6 +112,9 @@ def tally(n):
     return t, by_line
 
 (a, a_lines), (b, b_lines) = tally(counts(os.path.join(out, f"cg.{r}"))), tally(counts(os.path.join(out, "cg.0")))
+if r < 1 or not a["fma"] or a["fma"] <= b["fma"]:
+    sys.exit("no kernel instructions counted: is R at least 1, and is the kernel still "
+             "`filter_block_avx2` (callgrind's --toggle-collect)?")
 offsets = (2 * r + 1) ** 2 - 1
 po = w * h * offsets
 # Pixel-offsets whose window the frame's borders leave whole, as a share.
