@@ -12,12 +12,12 @@
 # Per round, from `examples/timing` (the filter from memory, one run per
 # process, frame synthesis outside the timed part):
 #   ours  = one / two: our two-thread scaling;
-#   host  = 2 one / ((a + b) / 2), where a and b are the two processes' times:
+#   ceiling = 2 one / ((a + b) / 2), where a and b are the two processes' times:
 #           the scaling a perfect two-thread run would reach when each core is
 #           as slow as it is while the other core runs the same kernel (the
 #           two-process ceiling: the machine's, for this kernel's memory traffic;
 #           `cargo bench --bench peak` gives it for arithmetic alone);
-#   share = ours / host: the part of that ceiling we reach.
+#   share = ours / ceiling: the part of that ceiling we reach.
 # Then the medians of the rounds' ratios. The rounds alternate so that each
 # ratio compares runs from the same minutes of this shared, noisy machine.
 set -euo pipefail
@@ -32,19 +32,23 @@ echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(n
 for round in $(seq "${ROUNDS:-3}"); do
   one=$("$t" "$MODE" "$W" "$H" 1 10 1 | secs)
   two=$("$t" "$MODE" "$W" "$H" 2 10 1 | secs)
-  taskset -c 0 "$t" "$MODE" "$W" "$H" 1 10 1 | secs > "$tmp/a" &
-  taskset -c 1 "$t" "$MODE" "$W" "$H" 1 10 1 | secs > "$tmp/b" &
-  wait
-  echo "$round $one $two $(cat "$tmp/a") $(cat "$tmp/b")"
+  taskset -c 0 "$t" "$MODE" "$W" "$H" 1 10 1 > "$tmp/a" &
+  pa=$!
+  taskset -c 1 "$t" "$MODE" "$W" "$H" 1 10 1 > "$tmp/b" &
+  pb=$!
+  wait "$pa"
+  wait "$pb"
+  a=$(secs < "$tmp/a"); b=$(secs < "$tmp/b")
+  echo "$round $one $two $a $b"
 done | awk '
   function median(v, n,   i, j, x) {
     for (i = 2; i <= n; i++) { x = v[i]; for (j = i - 1; j >= 1 && v[j] > x; j--) v[j + 1] = v[j]; v[j + 1] = x }
     return n % 2 ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
   }
   {
-    ours = $2 / $3; host = 2 * $2 / (($4 + $5) / 2)
-    o[NR] = ours; h[NR] = host; s[NR] = ours / host
-    printf "round %d: one thread %.3f s, two threads %.3f s, two processes %.3f and %.3f s: ours %.2fx, host %.2fx, share %.3f\n", $1, $2, $3, $4, $5, ours, host, ours / host
+    ours = $2 / $3; ceiling = 2 * $2 / (($4 + $5) / 2)
+    o[NR] = ours; h[NR] = ceiling; s[NR] = ours / ceiling
+    printf "round %d: one thread %.3f s, two threads %.3f s, two processes %.3f and %.3f s: ours %.2fx, ceiling %.2fx, share %.3f\n", $1, $2, $3, $4, $5, ours, ceiling, ours / ceiling
     fflush()
   }
-  END { printf "medians over %d rounds: ours %.2fx, host %.2fx, share %.3f\n", NR, median(o, NR), median(h, NR), median(s, NR) }'
+  END { printf "medians over %d rounds: ours %.2fx, ceiling %.2fx, share %.3f\n", NR, median(o, NR), median(h, NR), median(s, NR) }'
