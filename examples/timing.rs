@@ -8,17 +8,23 @@
 //! `cargo run --release --example timing -- MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]`
 //! MODE: `colour` (beauty + variance only), `full` (the default filter with
 //! albedo, normal and depth features, and the direct/indirect light layers),
-//! `features` (features, no layers) or `layers` (layers, no features).
+//! `features` (features, no layers) or `layers` (layers, no features);
+//! `full-var` is `full` with a variance channel per feature channel
+//! (`albedo_var.*`, `N_var.*`, `Z_var`, as renderers such as Mitsuba write
+//! them and `../shared/scenes` has them), which the default filter then
+//! uses (SPEC §3): the path real renders take.
 //! `NLDENOISE_TILE=N` sets the tile size (default: the engine's).
 
 use std::time::Instant;
 
 use nldenoise::engine::synthetic::Synthetic;
 use nldenoise::engine::{StreamOptions, denoise_stream};
+use nldenoise::exrio::Channel;
 use nldenoise::exrio::roles::{self, RoleOptions, Selection};
 use nldenoise::exrio::stream::{FrameSource, NullSink};
 use nldenoise::filter::Params;
 use nldenoise::geom::Rect;
+use nldenoise::image::Samples;
 
 fn main() {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -28,7 +34,7 @@ fn main() {
     }
     // `layers` and `features` run one half of the full filter, to attribute its cost.
     let (features, layers) = match a[0].as_str() {
-        "full" => (true, true),
+        "full" | "full-var" => (true, true),
         "features" => (true, false),
         "layers" => (false, true),
         _ => (false, false),
@@ -37,7 +43,23 @@ fn main() {
     let radius: usize = a.get(4).map_or(10, |s| s.parse().unwrap());
     let runs: usize = a.get(5).map_or(3, |s| s.parse().unwrap());
     let rect = Rect::from_origin_size(0, 0, w, h);
-    let frame = Synthetic { frame: rect, features, layers, sigma: 0.05 }.to_frame();
+    let mut frame = Synthetic { frame: rect, features, layers, sigma: 0.05 }.to_frame();
+    if a[0] == "full-var" {
+        // Each feature channel's variance: small, varying from pixel to pixel.
+        let feature_channels: Vec<String> = frame
+            .channel_names()
+            .into_iter()
+            .filter(|n| n.starts_with("albedo.") || n.starts_with("N.") || n == "Z")
+            .collect();
+        for name in feature_channels {
+            let var_name = match name.split_once('.') {
+                Some((base, c)) => format!("{base}_var.{c}"),
+                None => format!("{name}_var"),
+            };
+            let samples = (0..w * h).map(|i| 1e-4 * (1.0 + (i % 7) as f32)).collect();
+            frame.channels.push(Channel::new(var_name, Samples::F32(samples)));
+        }
+    }
     let opts = RoleOptions {
         layers: if layers { Selection::Auto } else { Selection::None },
         features: if features { Selection::Auto } else { Selection::None },
