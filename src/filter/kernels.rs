@@ -1212,6 +1212,106 @@ unsafe fn guide_pair_products<const K: usize>(
     }
 }
 
+/// One lane of [`guide_variance_pair_avx512`]: where its first pixel lies in
+/// the pair's row (in samples), its row of the guides' weight argument
+/// (`out.len()` samples), and the feature's factors `inv_den` of each
+/// channel at the lane's pixels (`out.len()` each).
+pub type VarianceLane<'a, const C: usize> = (usize, &'a mut [f32], [&'a [f32]; C]);
+
+/// [`fold_feature_term`] with variance, for both lanes of a pair of offsets
+/// `n` and `-n` in one pass over the pair's rows: the forward lane's term at
+/// `p` is `variance_step` over the channels of `(fp, fq, vp, vq)` with its
+/// factors, the mirror lane's at `p + n` the same with the roles of `p` and
+/// `q` swapped, each folded into its lane's row (from 0 when `first`) by the
+/// NaN-safe minimum. The same operations per sample as the per-lane
+/// [`fold_feature_term`] (the difference `q - p` is exactly `-(p - q)`, so
+/// both lanes share one; each lane keeps its own minimum of the variances,
+/// whose operand order decides which of a NaN and a number it gives), so
+/// the same bits; each
+/// channel's rows are read once for both lanes instead of once per lane.
+/// Rows of `n >= 16` samples; the last chunk overlaps its predecessor (the
+/// fold is idempotent).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub unsafe fn guide_variance_pair_avx512<const C: usize>(
+    n: usize,
+    (fp, fq): (&[&[f32]; C], &[&[f32]; C]),
+    (vp, vq): (&[&[f32]; C], &[&[f32]; C]),
+    first: bool,
+    lanes: [Option<VarianceLane<'_, C>>; 2],
+) {
+    use std::arch::x86_64::*;
+    assert!(n >= 16, "{n} samples");
+    for c in 0..C {
+        assert!(fp[c].len() >= n && fq[c].len() >= n && vp[c].len() >= n && vq[c].len() >= n, "the pair's rows");
+    }
+    for (from, out, inv) in lanes.iter().flatten() {
+        let len = out.len();
+        assert!(len > 0 && from + len <= n, "a lane lies inside the pair's row");
+        assert!(inv.iter().all(|r| r.len() >= len), "the factors cover the lane");
+    }
+    // The bits `k` of a chunk from `i` whose sample `i + k` lies in the lane.
+    let in_lane = |lane: &Option<VarianceLane<'_, C>>, i: usize| -> u16 {
+        let Some((from, out, _)) = lane else { return 0 };
+        let (lo, hi) = (from.saturating_sub(i).min(16), (from + out.len()).saturating_sub(i).min(16));
+        if hi <= lo { 0 } else { (((1u32 << hi) - 1) & !((1u32 << lo) - 1)) as u16 }
+    };
+    let [mut fwd, mut mir] = lanes;
+    for ch in 0..chunk_count::<16>(n) {
+        let i = chunk_start::<16>(ch, n);
+        let (mf, mm) = (in_lane(&fwd, i), in_lane(&mir, i));
+        // Sample `i - from` of a lane's rows (`wrapping_`: it may lie before
+        // their start; the masked-off samples are not touched).
+        let at_f = fwd.as_ref().map_or(0, |l| i.wrapping_sub(l.0));
+        let at_m = mir.as_ref().map_or(0, |l| i.wrapping_sub(l.0));
+        let (mut af, mut am) = (_mm512_setzero_ps(), _mm512_setzero_ps());
+        for c in 0..C {
+            // SAFETY: `i + 16 <= n <= len` of every pair row (asserted); the
+            // masks keep the samples `0..out.len()` of the factors' rows.
+            unsafe {
+                let p = _mm512_loadu_ps(fp[c].as_ptr().add(i));
+                let q = _mm512_loadu_ps(fq[c].as_ptr().add(i));
+                let x = _mm512_loadu_ps(vp[c].as_ptr().add(i));
+                let y = _mm512_loadu_ps(vq[c].as_ptr().add(i));
+                let d = _mm512_sub_ps(p, q);
+                if let Some((_, _, inv)) = &fwd
+                    && mf != 0
+                {
+                    // `vq < vp ? vq : vp`, then `d d - (vp + m)` and the factor.
+                    let e = _mm512_fmsub_ps(d, d, _mm512_add_ps(x, _mm512_min_ps(y, x)));
+                    let f = _mm512_maskz_loadu_ps(mf, inv[c].as_ptr().wrapping_add(at_f));
+                    af = _mm512_fmadd_ps(e, f, af);
+                }
+                if let Some((_, _, inv)) = &mir
+                    && mm != 0
+                {
+                    // The pair `(q, p)`: `vp < vq ? vp : vq`, `(-d)^2 = d^2`.
+                    let e = _mm512_fmsub_ps(d, d, _mm512_add_ps(y, _mm512_min_ps(x, y)));
+                    let f = _mm512_maskz_loadu_ps(mm, inv[c].as_ptr().wrapping_add(at_m));
+                    am = _mm512_fmadd_ps(e, f, am);
+                }
+            }
+        }
+        for (lane, mask, at, a) in [(&mut fwd, mf, at_f, af), (&mut mir, mm, at_m, am)] {
+            let Some((_, out, _)) = lane else { continue };
+            if mask == 0 {
+                continue;
+            }
+            let ptr = out.as_mut_ptr().wrapping_add(at);
+            // SAFETY: the mask keeps the samples `0..out.len()` of the lane's row.
+            unsafe {
+                let o = if first { _mm512_setzero_ps() } else { _mm512_maskz_loadu_ps(mask, ptr) };
+                // `fold_min(o, t)`: `t` only when it is smaller.
+                _mm512_mask_storeu_ps(ptr, mask, _mm512_min_ps(a, o));
+            }
+        }
+    }
+}
+
 /// Sample `i` of the square sum `((0 + d_0^2) + d_1^2) + ...`, `d_c = fp_c - fq_c`.
 #[inline(always)]
 fn square_sum_at<const C: usize>(fp: &[&[f32]; C], fq: &[&[f32]; C], i: usize) -> f32 {
@@ -1468,6 +1568,112 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The paired kernel of guides with variance gives each lane the bits
+    /// of the per-lane pass ([`fold_feature_term`] with the lane's own
+    /// pixels as `p`), folded from 0 or into earlier terms: rows shorter
+    /// than, equal to and not a multiple of a chunk, lanes starting and
+    /// ending inside chunks, ties between the variances (zeros of either
+    /// sign among them), NaN variances (where the minimum's operand order
+    /// shows), infinite samples and negative factors as the weight's are.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn guide_variance_pair_matches_the_per_lane_pass() {
+        if !avx512_or_skip() {
+            return;
+        }
+        fn check<const C: usize>(seed: u32) {
+            let mut next = mixed_values(seed, 0.5, 5);
+            let mut special = seed;
+            let mut pick = move || {
+                special = special.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                (special >> 16) % 29
+            };
+            for n in [16, 17, 53, 64, 100] {
+                let mut value = |variance: bool| match pick() {
+                    0 if !variance => f32::INFINITY,
+                    0 => f32::NAN,
+                    1 => 0.0,
+                    2 => -0.0,
+                    _ if variance => next().abs(),
+                    _ => next(),
+                };
+                let rows = |value: &mut dyn FnMut(bool) -> f32, variance: bool| -> Vec<Vec<f32>> {
+                    (0..C).map(|_| (0..n).map(|_| value(variance)).collect()).collect()
+                };
+                let (mut fp, fq) = (rows(&mut value, false), rows(&mut value, false));
+                let (mut vp, mut vq) = (rows(&mut value, true), rows(&mut value, true));
+                // An infinite sample inside every lane; ties: equal
+                // variances, and `+0` against `-0` both ways.
+                fp[0][n - 7] = f32::INFINITY;
+                for c in 0..C {
+                    for i in (c..n).step_by(5) {
+                        vq[c][i] = vp[c][i];
+                    }
+                    for i in (c + 2..n).step_by(11) {
+                        (vp[c][i], vq[c][i]) = if i % 2 == 0 { (0.0, -0.0) } else { (-0.0, 0.0) };
+                    }
+                }
+                let inv: Vec<Vec<f32>> = (0..2 * C)
+                    .map(|j| (0..n).map(|i| if (i + j) % 13 == 0 { -0.0 } else { -(next().abs() + 0.5) }).collect())
+                    .collect();
+                let earlier: Vec<f32> = (0..n).map(|i| if i % 7 == 0 { 0.0 } else { -next().abs() }).collect();
+                fn arr<const C: usize>(v: &[Vec<f32>], (x0, x1): (usize, usize)) -> [&[f32]; C] {
+                    let mut a: [&[f32]; C] = [&[]; C];
+                    for (c, r) in a.iter_mut().enumerate() {
+                        *r = &v[c][x0..x1];
+                    }
+                    a
+                }
+                let spans = [(0, n), (3, n - 5), (1, n), (0, n - 1), (n - 16, n)];
+                for (t, first) in [(0, true), (1, false), (2, true), (3, false)] {
+                    let (a, b) = (spans[t % spans.len()], spans[(t + 2) % spans.len()]);
+                    // The per-lane pass: the forward lane's pixels are `p`, the mirror's `q`.
+                    let want = |(x0, x1): (usize, usize), mirror: bool| {
+                        let mut out = earlier[x0..x1].to_vec();
+                        let (p, q, v, w) = if mirror { (&fq, &fp, &vq, &vp) } else { (&fp, &fq, &vp, &vq) };
+                        let inv = arr(&inv[if mirror { C } else { 0 }..], (x0, x1));
+                        let rows = FeatureRows::<C> {
+                            fp: arr(p, (x0, x1)),
+                            fq: arr(q, (x0, x1)),
+                            var: Some((arr(v, (x0, x1)), arr(w, (x0, x1)))),
+                            inv_den: inv,
+                        };
+                        if first {
+                            fold_feature_term::<16, C, true>(&mut out, &rows);
+                        } else {
+                            fold_feature_term::<16, C, false>(&mut out, &rows);
+                        }
+                        out
+                    };
+                    let mut oa = earlier[a.0..a.1].to_vec();
+                    let mut ob = earlier[b.0..b.1].to_vec();
+                    let lanes =
+                        [Some((a.0, &mut oa[..], arr(&inv[..C], a))), Some((b.0, &mut ob[..], arr(&inv[C..], b)))];
+                    let all = (0, n);
+                    // SAFETY: AVX-512F was detected above.
+                    unsafe {
+                        guide_variance_pair_avx512::<C>(
+                            n,
+                            (&arr(&fp, all), &arr(&fq, all)),
+                            (&arr(&vp, all), &arr(&vq, all)),
+                            first,
+                            lanes,
+                        )
+                    };
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    let at = format!("C = {C}, n = {n}, lanes {a:?} and {b:?}, first {first}");
+                    assert_eq!(bits(&oa), bits(&want(a, false)), "forward lane, {at}");
+                    assert_eq!(bits(&ob), bits(&want(b, true)), "mirror lane, {at}");
+                    assert!(oa.iter().chain(&ob).any(|v| *v < 0.0), "{at}: the terms are not all zero");
+                }
+            }
+        }
+        check::<1>(0x2468_ace1);
+        check::<2>(0x1357_9bdf);
+        check::<3>(0x0f0f_1e1e);
+        check::<4>(0x7777_1234);
     }
 
     /// The AVX-512 window sums give the bits of the expression every other

@@ -17,8 +17,9 @@ use super::kernels::{
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
-    GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, feature_square_sum_half_avx2, feature_square_sum_half_avx512,
-    guide_pair_products_avx512, weights_avx512, weights_factors_avx512,
+    GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, VarianceLane, feature_square_sum_half_avx2,
+    feature_square_sum_half_avx512, guide_pair_products_avx512, guide_variance_pair_avx512, weights_avx512,
+    weights_factors_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -1571,6 +1572,14 @@ fn pair_feature_row<const W: usize, const AVX512: bool, const AVX2: bool>(
         },
         false => (fwd, mir),
     };
+    #[cfg(target_arch = "x86_64")]
+    let (fwd, mir) = match AVX512 && x1 - x0 >= 16 {
+        true => match paired_variance_guides(features, (dx, dy), y, (x0, x1), fwd, mir) {
+            Some(lanes) => lanes,
+            None => return,
+        },
+        false => (fwd, mir),
+    };
     pair_feature_row_stored::<W, AVX512, AVX2>(features, (dx, dy), y, (x0, x1), fwd, mir, square_sums);
 }
 
@@ -1634,6 +1643,77 @@ fn fused_guide_products<'r>(
     // runs only on CPUs with avx512f.
     unsafe { guide_pair_products_avx512(w, (&fp[..c], &fq[..c]), &ends[..k], lanes) };
     None
+}
+
+/// [`pair_feature_row`] on the AVX-512 tier when every guide has a variance
+/// (as real renders' features do) of 1 to 4 channels: each guide's terms of
+/// both lanes in one pass ([`guide_variance_pair_avx512`]), guide after guide
+/// in order, as the per-lane passes fold them: the same bits. Else hands the
+/// lanes back. Columns `x0..x1` of the pixels `p`, at least 16.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn paired_variance_guides<'r>(
+    features: &[GuideFeature],
+    (dx, dy): (i64, i64),
+    y: i64,
+    (x0, x1): (i64, i64),
+    fwd: Option<(Rect, &'r mut [f32])>,
+    mir: Option<(Rect, &'r mut [f32])>,
+) -> Option<(Option<(Rect, &'r mut [f32])>, Option<(Rect, &'r mut [f32])>)> {
+    let fits = !features.is_empty()
+        && features.iter().all(|f| f.variance.is_some() && (1..=PRODUCTS_MAX).contains(&f.values.len()));
+    if !fits {
+        return Some((fwd, mir));
+    }
+    let (mut fwd, mut mir) = (fwd, mir);
+    for (j, feat) in features.iter().enumerate() {
+        match feat.values.len() {
+            1 => paired_variance_guide::<1>(feat, (dx, dy), y, (x0, x1), j == 0, (&mut fwd, &mut mir)),
+            2 => paired_variance_guide::<2>(feat, (dx, dy), y, (x0, x1), j == 0, (&mut fwd, &mut mir)),
+            3 => paired_variance_guide::<3>(feat, (dx, dy), y, (x0, x1), j == 0, (&mut fwd, &mut mir)),
+            _ => paired_variance_guide::<4>(feat, (dx, dy), y, (x0, x1), j == 0, (&mut fwd, &mut mir)),
+        }
+    }
+    None
+}
+
+/// One guide of [`paired_variance_guides`], `C` channels.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn paired_variance_guide<const C: usize>(
+    feat: &GuideFeature,
+    (dx, dy): (i64, i64),
+    y: i64,
+    (x0, x1): (i64, i64),
+    first: bool,
+    (fwd, mir): (&mut Option<(Rect, &mut [f32])>, &mut Option<(Rect, &mut [f32])>),
+) {
+    let var = feat.variance.as_ref().expect("a guide with variance");
+    let (fp, fq) =
+        (channel_rows::<C>(&feat.values, y, x0, x1), channel_rows::<C>(&feat.values, y + dy, x0 + dx, x1 + dx));
+    let (vp, vq) = (channel_rows::<C>(var, y, x0, x1), channel_rows::<C>(var, y + dy, x0 + dx, x1 + dx));
+    // A lane's pixels: its own columns in its own row; the mirror's pixels
+    // `p + n` lie `dx` columns right of their `p`.
+    fn lane<'a, const C: usize>(
+        lane: &'a mut Option<(Rect, &mut [f32])>,
+        feat: &'a GuideFeature,
+        (ly, shift, x0): (i64, i64, i64),
+    ) -> Option<VarianceLane<'a, C>> {
+        let last = feat.inv_den.len() - 1;
+        lane.as_mut().map(|(r, row)| {
+            let mut inv: [&[f32]; C] = [&[]; C];
+            for (c, i) in inv.iter_mut().enumerate() {
+                *i = feat.inv_den[c.min(last)].row(ly, r.x0, r.x1);
+            }
+            ((r.x0 - shift - x0) as usize, &mut row[..r.width()], inv)
+        })
+    }
+    let lanes = [lane::<C>(fwd, feat, (y, 0, x0)), lane::<C>(mir, feat, (y + dy, dx, x0))];
+    // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper, which
+    // runs only on CPUs with avx512f.
+    unsafe { guide_variance_pair_avx512::<C>((x1 - x0) as usize, (&fp, &fq), (&vp, &vq), first, lanes) };
 }
 
 /// [`pair_feature_row`] through stored square sums, one row per guide.
