@@ -7,7 +7,9 @@ templateWindowSize=7 (the same r=10, f=3 as ours), the given thread count, from
 memory. Ours, with the same thread count: `nldenoise denoise --layers auto` on
 the EXR (the full default filter: albedo/normal/depth features and the direct
 and indirect light layers, file in and out), and the same frame's filter from
-memory (examples/timing: colour-only, and full). All are run alternately,
+memory (examples/timing: colour-only, full, and full-var: the full filter
+with a variance per feature channel, the path real renders take; the
+synthetic frame has none otherwise). All are run alternately,
 ROUNDS times; the medians, the ratios to OpenCV, and each round's own
 ratios (runs of the same minutes) are printed.
 """
@@ -25,7 +27,7 @@ extra = sys.argv[6:] or ["--layers", "auto"]
 bgr8 = tone_mapped_bgr8(exr)
 
 
-ours, theirs, mem_colour, mem_full = [], [], [], []
+ours, theirs, mem_colour, mem_full, mem_fullvar = [], [], [], [], []
 for _ in range(rounds):
     theirs.append(opencv_seconds(bgr8, threads))
     t = time.perf_counter()
@@ -33,6 +35,7 @@ for _ in range(rounds):
     ours.append(time.perf_counter() - t)
     mem_colour.append(memory_seconds(timing, "colour", threads))
     mem_full.append(memory_seconds(timing, "full", threads))
+    mem_fullvar.append(memory_seconds(timing, "full-var", threads))
 
 h, w = bgr8.shape[:2]
 mo, mt = statistics.median(ours), statistics.median(theirs)
@@ -42,7 +45,12 @@ print(f"nldenoise denoise {' '.join(extra)} (f32, file in and out): median {mo:.
 mc, mf = statistics.median(mem_colour), statistics.median(mem_full)
 print(f"nldenoise filter from memory, colour only: median {mc:.2f} s  {['%.2f' % x for x in mem_colour]}")
 print(f"nldenoise filter from memory, full default: median {mf:.2f} s  {['%.2f' % x for x in mem_full]}")
-print(f"ratio to OpenCV: file {mo / mt:.2f}, memory full {mf / mt:.2f}, memory colour-only {mc / mt:.2f}")
+mv = statistics.median(mem_fullvar)
+print(f"nldenoise filter from memory, full default with feature variances: median {mv:.2f} s  {['%.2f' % x for x in mem_fullvar]}")
+print(
+    f"ratio to OpenCV: file {mo / mt:.2f}, memory full {mf / mt:.2f}, memory full with feature variances {mv / mt:.2f}, "
+    f"memory colour-only {mc / mt:.2f}"
+)
 # Each round's own ratio: its runs share the same minutes of the host's load,
 # which the medians above, taken over the whole run, do not pair.
 rounds_full = [f / t for f, t in zip(mem_full, theirs)]
