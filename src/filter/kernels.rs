@@ -1227,8 +1227,8 @@ pub type VarianceLane<'a, const C: usize> = (usize, &'a mut [f32], [&'a [f32]; C
 /// [`fold_feature_term`] (the difference `q - p` is exactly `-(p - q)`, so
 /// both lanes share one; each lane keeps its own minimum of the variances,
 /// whose operand order decides which of a NaN and a number it gives), so
-/// the same bits; each
-/// channel's rows are read once for both lanes instead of once per lane.
+/// the same bits; each channel's rows are read once for both lanes instead
+/// of once per lane.
 /// Rows of `n >= 16` samples; the last chunk overlaps its predecessor (the
 /// fold is idempotent).
 ///
