@@ -436,7 +436,7 @@ pub const CHUNK: usize = 16;
 /// docs/performance.md, session 16).
 pub const CHUNK_AVX512: usize = 64;
 
-// The AVX-512 and half-float kernels (`taps7_sum_avx512`,
+// The AVX-512 and half-float kernels (`taps_sum_avx512`,
 // `feature_square_sum_half_*`) handle one 16-lane vector per chunk of `CHUNK`.
 const _: () = assert!(CHUNK == 16, "the 16-lane kernels need 16-sample chunks");
 
@@ -533,33 +533,39 @@ pub fn rows_sum<const W: usize, const T: usize>(rows: [&[f32]; T], out: &mut [f3
     }
 }
 
-/// The 7-tap window sums `out[i] = ((p[i] + p[i + 2]) + p[i + 4]) + src[i + 6]`
-/// with `p[j] = src[j] + src[j + 1]` (`src` holds `out.len() + 6` samples):
-/// the same expression as the portable pair sums with `F = 3`, its shifted
-/// operands formed in registers (`valignd`) from one load per chunk instead
-/// of five loads, most of them split across cache lines, and a stored pair row.
-/// The kernel pushes these sums straight into its boxes
-/// ([`taps7_push_avx512`], the same register sums); this stored form is
-/// their reference, tested against the expression.
+/// The window sums of `2F + 1` taps, `out[i] = ((p[i] + p[i + 2]) + ...
+/// + p[i + 2F - 2]) + src[i + 2F]` with `p[j] = src[j] + src[j + 1]`
+/// (`src` holds `out.len() + 2F` samples; with `F = 3`, the 7-tap sums
+/// `((p[i] + p[i + 2]) + p[i + 4]) + src[i + 6]`), for `F` from 1 to 4:
+/// the same expression as the portable pair sums ([`rows_sum`] of the pair
+/// rows), its shifted operands formed in registers (`valignd`) from one load
+/// per chunk instead of `F + 2` loads, most of them split across cache
+/// lines, and a stored pair row. The kernel pushes these sums straight into
+/// its boxes ([`taps_push_avx512`], the same register sums); this stored
+/// form is their reference, tested against the expression.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
+pub unsafe fn taps_sum_avx512<const F: usize>(src: &[f32], out: &mut [f32]) {
     use std::arch::x86_64::*;
     let n = out.len();
-    assert_eq!(src.len(), n + 6, "a 7-tap window per output");
+    assert_eq!(src.len(), n + 2 * F, "a window of 2F + 1 taps per output");
     if n < CHUNK {
         for (i, o) in out.iter_mut().enumerate() {
             let p = |j: usize| src[j] + src[j + 1];
-            *o = ((p(i) + p(i + 2)) + p(i + 4)) + src[i + 6];
+            let mut acc = p(i);
+            for k in 1..F {
+                acc += p(i + 2 * k);
+            }
+            *o = acc + src[i + 2 * F];
         }
         return;
     }
     let full = n / CHUNK;
-    let mut taps = Taps7::new(src);
+    let mut taps = Taps::<F>::new(src);
     for c in 0..full {
         let i = c * CHUNK;
         let o = taps.next(i);
@@ -569,20 +575,20 @@ pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
     if !n.is_multiple_of(CHUNK) {
         // The last 16 outputs (overlapping the previous chunk), from scratch.
         let i = n - CHUNK;
-        let o = Taps7::new(&src[i..]).next(0);
+        let o = Taps::<F>::new(&src[i..]).next(0);
         // SAFETY: `i + 16 == n`.
         unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
     }
 }
 
-/// The 7-tap window sums of [`taps7_sum_avx512`] (the same expression, bit
-/// for bit), pushed straight into a box's row, without storing them: each
+/// The window sums of [`taps_sum_avx512`] (the same expression, bit for
+/// bit), pushed straight into a box's row, without storing them: each
 /// sum `x` becomes `v = round(x)` (to nearest, ties to even), clamped
 /// first to `[-limit, limit]` with `CLAMP` (NaN to `-limit`), exactly as
 /// `column_sums::Quantiser` does one sample; then `ring[i] = v` and the
 /// running sum `run[i]` becomes `v` (`CASE` 0), `run[i] + v` (1) or
 /// `run[i] + v - ring[i]` (2, the old `ring[i]`), wrapping. `src` holds
-/// `ring.len() + 6` samples; the last chunk is masked, so every column is
+/// `ring.len() + 2F` samples; the last chunk is masked, so every column is
 /// pushed once.
 ///
 /// # Safety
@@ -590,7 +596,7 @@ pub unsafe fn taps7_sum_avx512(src: &[f32], out: &mut [f32]) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-pub unsafe fn taps7_push_avx512<const CLAMP: bool, const CASE: u8>(
+pub unsafe fn taps_push_avx512<const F: usize, const CLAMP: bool, const CASE: u8>(
     src: &[f32],
     ring: &mut [i32],
     run: &mut [i32],
@@ -598,9 +604,9 @@ pub unsafe fn taps7_push_avx512<const CLAMP: bool, const CASE: u8>(
 ) {
     use std::arch::x86_64::*;
     let n = ring.len();
-    assert!(run.len() == n && src.len() == n + 6, "a 7-tap window per pushed sample");
+    assert!(run.len() == n && src.len() == n + 2 * F, "a window of 2F + 1 taps per pushed sample");
     let (lo, hi) = (_mm512_set1_ps(-limit), _mm512_set1_ps(limit));
-    let mut taps = Taps7::new(src);
+    let mut taps = Taps::<F>::new(src);
     for i in (0..n).step_by(CHUNK) {
         let x = taps.next(i);
         // `max` returns its second operand when the first is NaN.
@@ -622,7 +628,7 @@ pub unsafe fn taps7_push_avx512<const CLAMP: bool, const CASE: u8>(
 }
 
 /// Masked loads and stores of 16 lanes that run as plain ones when the mask
-/// keeps every lane (a row's interior), for [`taps7_push_avx512`]. On AMD's
+/// keeps every lane (a row's interior), for [`taps_push_avx512`]. On AMD's
 /// Zen 4 the pushes with plain loads and stores inside their rows took
 /// 0.95-0.97x the full filter's time (session 31, docs/performance.md);
 /// the same change in the weights' and the guides' loops as well measured
@@ -658,11 +664,13 @@ mod masked {
     }
 }
 
-/// The 7-tap sums of consecutive chunks of a row `src` (AVX-512): the
-/// samples from the chunk's start and 16 further (`x0`, `x1`), and their
-/// pair sums `p[j] = src[j] + src[j + 1]` (`p0`), carried to the next chunk.
+/// The window sums of `2F + 1` taps of consecutive chunks of a row `src`
+/// (AVX-512): the samples from the chunk's start and 16 further (`x0`,
+/// `x1`), and their pair sums `p[j] = src[j] + src[j + 1]` (`p0`), carried
+/// to the next chunk. `F` from 1 to 4: every shifted operand lies within
+/// the two vectors it is taken from.
 #[cfg(target_arch = "x86_64")]
-struct Taps7<'a> {
+struct Taps<'a, const F: usize> {
     src: &'a [f32],
     x0: std::arch::x86_64::__m512,
     x1: std::arch::x86_64::__m512,
@@ -670,15 +678,16 @@ struct Taps7<'a> {
 }
 
 #[cfg(target_arch = "x86_64")]
-impl<'a> Taps7<'a> {
+impl<'a, const F: usize> Taps<'a, F> {
     /// Ready for the chunk at 0.
     #[inline(always)]
-    fn new(src: &'a [f32]) -> Taps7<'a> {
+    fn new(src: &'a [f32]) -> Taps<'a, F> {
         use std::arch::x86_64::*;
+        const { assert!(F >= 1 && F <= 4, "windows of 3 to 9 taps") };
         let (x0, x1) = (Self::load(src, 0), Self::load(src, CHUNK));
         // SAFETY: the callers run only on CPUs with avx512f (their wrappers' target feature).
         let p0 = unsafe { _mm512_add_ps(x0, valign::<1>(x0, x1)) };
-        Taps7 { src, x0, x1, p0 }
+        Taps { src, x0, x1, p0 }
     }
 
     /// Samples `at..at + 16` of `src`, lanes past its end zero (masked
@@ -708,9 +717,25 @@ impl<'a> Taps7<'a> {
         // SAFETY: avx512f, see `new`.
         unsafe {
             let p1 = _mm512_add_ps(x1, valign::<1>(x1, x2));
-            let acc = _mm512_add_ps(p0, valign::<2>(p0, p1));
-            let acc = _mm512_add_ps(acc, valign::<4>(p0, p1));
-            let o = _mm512_add_ps(acc, valign::<6>(x0, x1));
+            // `((p[i] + p[i + 2]) + ...) + p[i + 2F - 2]`, in that order.
+            let mut acc = p0;
+            if F >= 2 {
+                acc = _mm512_add_ps(acc, valign::<2>(p0, p1));
+            }
+            if F >= 3 {
+                acc = _mm512_add_ps(acc, valign::<4>(p0, p1));
+            }
+            if F >= 4 {
+                acc = _mm512_add_ps(acc, valign::<6>(p0, p1));
+            }
+            // Then `src[i + 2F]`.
+            let last = match F {
+                1 => valign::<2>(x0, x1),
+                2 => valign::<4>(x0, x1),
+                3 => valign::<6>(x0, x1),
+                _ => valign::<8>(x0, x1),
+            };
+            let o = _mm512_add_ps(acc, last);
             (self.x0, self.x1, self.p0) = (x1, x2, p1);
             o
         }
@@ -722,7 +747,7 @@ impl<'a> Taps7<'a> {
 #[inline(always)]
 fn valign<const K: i32>(a: std::arch::x86_64::__m512, b: std::arch::x86_64::__m512) -> std::arch::x86_64::__m512 {
     use std::arch::x86_64::*;
-    // SAFETY: avx512f, see `Taps7::new`.
+    // SAFETY: avx512f, see `Taps::new`.
     unsafe { _mm512_castsi512_ps(_mm512_alignr_epi32::<K>(_mm512_castps_si512(b), _mm512_castps_si512(a))) }
 }
 
@@ -1677,27 +1702,38 @@ mod tests {
     }
 
     /// The AVX-512 window sums give the bits of the expression every other
-    /// tier computes, for rows shorter than, equal to and not a multiple of
-    /// a chunk.
+    /// tier computes, for windows of 3 to 9 taps and rows shorter than,
+    /// equal to and not a multiple of a chunk.
     #[cfg(target_arch = "x86_64")]
     #[test]
-    fn taps7_sum_avx512_matches_the_pair_sum_expression() {
+    fn taps_sum_avx512_matches_the_pair_sum_expression() {
         if !avx512_or_skip() {
             return;
         }
-        // Values of mixed magnitude and sign, so that the order of the adds shows.
-        let mut next = mixed_values(0x2545_f491, 0.3, 7);
-        for n in (1..50).chain([63, 64, 65, 100, 513]) {
-            let src: Vec<f32> = (0..n + 6).map(|_| next()).collect();
-            let mut out = vec![f32::NAN; n];
-            // SAFETY: AVX-512F was detected above.
-            unsafe { taps7_sum_avx512(&src, &mut out) };
-            for (i, o) in out.iter().enumerate() {
-                let p = |j: usize| src[j] + src[j + 1];
-                let want = ((p(i) + p(i + 2)) + p(i + 4)) + src[i + 6];
-                assert_eq!(o.to_bits(), want.to_bits(), "n = {n}, i = {i}");
+        fn check<const F: usize>(seed: u32) {
+            // Values of mixed magnitude and sign, so that the order of the adds shows.
+            let mut next = mixed_values(seed, 0.3, 7);
+            for n in (1..50).chain([63, 64, 65, 100, 513]) {
+                let src: Vec<f32> = (0..n + 2 * F).map(|_| next()).collect();
+                let mut out = vec![f32::NAN; n];
+                // SAFETY: AVX-512F was detected by the caller.
+                unsafe { taps_sum_avx512::<F>(&src, &mut out) };
+                // The portable tiers' pair sums: `rows_sum` of the pair rows and `src` shifted.
+                let pairs: Vec<f32> = (0..n + 2 * F - 1).map(|j| src[j] + src[j + 1]).collect();
+                for (i, o) in out.iter().enumerate() {
+                    let mut want = pairs[i];
+                    for k in 1..F {
+                        want += pairs[i + 2 * k];
+                    }
+                    want += src[i + 2 * F];
+                    assert_eq!(o.to_bits(), want.to_bits(), "F = {F}, n = {n}, i = {i}");
+                }
             }
         }
+        check::<1>(0x2545_f491);
+        check::<2>(0x1234_5679);
+        check::<3>(0x0bad_cafe);
+        check::<4>(0x7f4a_7c15);
     }
 
     #[test]

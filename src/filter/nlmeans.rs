@@ -916,7 +916,7 @@ impl WeightSample for i32 {
 /// [x - f, x + f] ∩ clip` for `x` from `dst_x0`. A whole window (f <= 4)
 /// adds the pair sums of columns `(x - f, x - f + 1), (x - f + 2, x - f + 3), ...`
 /// then column `x + f` ([`pair_taps_sum`], the pairs in `pairs`; on the
-/// AVX-512 tier with `f = 3`, [`push_window_sums`] forms the same sums in
+/// AVX-512 tier with `f <= 4`, [`push_window_sums`] forms the same sums in
 /// registers instead); a clipped window (or f > 4) starts from its first
 /// sample and adds the others in increasing x. `src` starts at column
 /// `src_x0` and covers every window.
@@ -983,9 +983,10 @@ fn clipped_window_sums(
 
 /// [`window_sums_row`] of `src` pushed as frame row `y` (`y0` as
 /// [`ColumnBox::pushed`]) into box `b`, `h` a scratch row of the sums'
-/// width. With `AVX512` and `f = 3`, the whole windows' sums go straight
-/// into the box ([`kernels::taps7_push_avx512`](super::kernels::taps7_push_avx512),
-/// the same sums and quantisation), not through `h`: one pass over the row fewer.
+/// width. With `AVX512` and `f` from 1 to 4 (the main filter's default 3,
+/// the feature prefilter's 2), the whole windows' sums go straight into the
+/// box ([`kernels::taps_push_avx512`](super::kernels::taps_push_avx512), the
+/// same sums and quantisation), not through `h`: one pass over the row fewer.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
@@ -999,24 +1000,23 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
     (h, pairs): (&mut [f32], &mut [f32]),
 ) {
     #[cfg(target_arch = "x86_64")]
-    if AVX512 && f == 3 {
-        use super::column_sums::PushCase;
-        use super::kernels::taps7_push_avx512;
+    if AVX512 && (1..=4).contains(&f) {
         let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, h);
         let mut slot = b.slot(y, y0, h.len());
         slot.push::<CLAMP>(0, &h[..inner.start]);
         slot.push::<CLAMP>(inner.end, &h[inner.end..]);
         if !inner.is_empty() {
-            let src = &src[from..from + inner.len() + 6];
+            let src = &src[from..from + inner.len() + 2 * f as usize];
             let (ring, run) = (&mut slot.ring[inner.clone()], &mut slot.run[inner]);
             let limit = slot.q.limit();
             // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
             // which runs only on CPUs with avx512f.
             unsafe {
-                match slot.case {
-                    PushCase::First => taps7_push_avx512::<CLAMP, 0>(src, ring, run, limit),
-                    PushCase::Filling => taps7_push_avx512::<CLAMP, 1>(src, ring, run, limit),
-                    PushCase::Steady => taps7_push_avx512::<CLAMP, 2>(src, ring, run, limit),
+                match f {
+                    1 => push_taps::<1, CLAMP>(slot.case, src, ring, run, limit),
+                    2 => push_taps::<2, CLAMP>(slot.case, src, ring, run, limit),
+                    3 => push_taps::<3, CLAMP>(slot.case, src, ring, run, limit),
+                    _ => push_taps::<4, CLAMP>(slot.case, src, ring, run, limit),
                 }
             }
         }
@@ -1024,6 +1024,32 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
     }
     window_sums_row::<W>(src, src_x0, clip, f, dst_x0, h, pairs);
     b.pushed::<CLAMP>(y, y0, h);
+}
+
+/// [`kernels::taps_push_avx512`](super::kernels::taps_push_avx512) of
+/// windows of `2F + 1` taps for the box row's push case.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn push_taps<const F: usize, const CLAMP: bool>(
+    case: super::column_sums::PushCase,
+    src: &[f32],
+    ring: &mut [i32],
+    run: &mut [i32],
+    limit: f32,
+) {
+    use super::column_sums::PushCase;
+    use super::kernels::taps_push_avx512;
+    // SAFETY: the caller's.
+    unsafe {
+        match case {
+            PushCase::First => taps_push_avx512::<F, CLAMP, 0>(src, ring, run, limit),
+            PushCase::Filling => taps_push_avx512::<F, CLAMP, 1>(src, ring, run, limit),
+            PushCase::Steady => taps_push_avx512::<F, CLAMP, 2>(src, ring, run, limit),
+        }
+    }
 }
 
 /// `out[i]`, the sum of `src[i..i + 2F + 1]`, from the pair sums
@@ -1827,7 +1853,7 @@ fn all_rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
 mod tests {
     use super::*;
 
-    /// The AVX-512 fused push of 7-tap window sums gives every box the
+    /// The AVX-512 fused push of window sums (3 to 9 taps) gives every box the
     /// rows (and so the window sums) of the portable path, sums stored then
     /// pushed: with and without the clamp (NaN, infinities and values past
     /// the clamp in the distances' rows), in each of the three push cases,
@@ -1840,12 +1866,13 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX-512F");
             return;
         }
-        fn check<const CLAMP: bool>(q: Quantiser, value: &dyn Fn(u32) -> f32) {
-            let f = 3i64;
+        // Patch radii 1 to 4 (windows of 3 to 9 taps); the box keeps `2f + 1` rows.
+        fn check<const CLAMP: bool>(f: i64, q: Quantiser, value: &dyn Fn(u32) -> f32) {
+            let cap = 2 * f as usize + 1;
             for n in (1..40).chain([47, 48, 49, 110, 129]) {
                 let clip = Rect { x0: 2, x1: n as i64 + 6, y0: 0, y1: 30 };
                 let (src_x0, dst_x0) = (0i64, 4i64);
-                let mut boxes = [ColumnBox::new(n, 7, q), ColumnBox::new(n, 7, q)];
+                let mut boxes = [ColumnBox::new(n, cap, q), ColumnBox::new(n, cap, q)];
                 let mut sums: [Vec<Vec<i32>>; 2] = [Vec::new(), Vec::new()];
                 for y in 0..clip.y1 {
                     let src: Vec<f32> = (0..n as u32 + 12).map(|x| value(y as u32 * 1000 + x)).collect();
@@ -1862,22 +1889,25 @@ mod tests {
                         }
                     }
                 }
-                assert_eq!(sums[0], sums[1], "n = {n}, clamp {CLAMP}");
-                assert!(sums[0].iter().flatten().any(|s| *s != 0), "n = {n}: the sums are not all zero");
+                assert_eq!(sums[0], sums[1], "f = {f}, n = {n}, clamp {CLAMP}");
+                assert!(sums[0].iter().flatten().any(|s| *s != 0), "f = {f}, n = {n}: the sums are not all zero");
             }
         }
         // Distances: mixed magnitudes and signs, scaled by the box's `2^s`,
         // and some samples NaN, infinite or past the clamp.
-        let q = Quantiser::distances(7, 3, 1.0, 0.2025);
-        check::<true>(q, &|i| match i.wrapping_mul(2_654_435_761) % 97 {
-            0 => f32::NAN,
-            1 => f32::INFINITY,
-            2 => -1e30,
-            3 => 1e9,
-            h => (h as f32 * 0.37 - 12.0) * q.scale() * if i % 5 == 0 { 1e-3 } else { 1.0 },
-        });
-        // Weights: in `[0, 1]`, scaled by `2^s` (inside the clamp, unclamped).
-        let q = Quantiser::weights(7);
-        check::<false>(q, &|i| (i.wrapping_mul(2_654_435_761) % 1000) as f32 * 1e-3 * q.scale());
+        for f in 1..=4 {
+            let cap = 2 * f as usize + 1;
+            let q = Quantiser::distances(cap, 3, 1.0, 0.2025);
+            check::<true>(f, q, &|i| match i.wrapping_mul(2_654_435_761) % 97 {
+                0 => f32::NAN,
+                1 => f32::INFINITY,
+                2 => -1e30,
+                3 => 1e9,
+                h => (h as f32 * 0.37 - 12.0) * q.scale() * if i % 5 == 0 { 1e-3 } else { 1.0 },
+            });
+            // Weights: in `[0, 1]`, scaled by `2^s` (inside the clamp, unclamped).
+            let q = Quantiser::weights(cap);
+            check::<false>(f, q, &|i| (i.wrapping_mul(2_654_435_761) % 1000) as f32 * 1e-3 * q.scale());
+        }
     }
 }

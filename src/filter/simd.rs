@@ -9,7 +9,7 @@
 //! `kernels::CHUNK`, which changes which samples one loop iteration computes,
 //! never their operations. Four kernels are written for the AVX-512 tier,
 //! each computing the same bits from the same samples:
-//! `kernels::taps7_push_avx512` (the horizontal window sums for `f = 3`,
+//! `kernels::taps_push_avx512` (the horizontal window sums for `f <= 4`,
 //! pushed into a lane's box as they are formed) forms the shifted operands
 //! in registers instead of loading them,
 //! `kernels::feature_square_sum_half_avx512` reads a guide stored as
