@@ -711,10 +711,15 @@ fn distance_rows<const W: usize>(
         let vp = [shifted(v0, y, x, 0), shifted(v1, y, x, 0), shifted(v2, y, x, 0)];
         let vq = [shifted(v0, y + dy, x, dx), shifted(v1, y + dy, x, dx), shifted(v2, y + dy, x, dx)];
         let consts = (alpha, eps, k2);
+        // Chunks of `CHUNK` samples on every tier, the AVX-512 one too: with
+        // its 64-sample chunks the two lanes' sums and three channels'
+        // operands did not fit the 32 registers and spilled (session 33,
+        // docs/performance.md: 0.96x the full filter's time). The width
+        // never changes a bit (the outputs are not inputs).
         if alpha == 1.0 {
-            colour_distance_pair_rgb::<W, true>(d, m, up, uq, vp, vq, consts);
+            colour_distance_pair_rgb::<CHUNK, true>(d, m, up, uq, vp, vq, consts);
         } else {
-            colour_distance_pair_rgb::<W, false>(d, m, up, uq, vp, vq, consts);
+            colour_distance_pair_rgb::<CHUNK, false>(d, m, up, uq, vp, vq, consts);
         }
     } else {
         d.fill(0.0);
