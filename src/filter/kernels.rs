@@ -535,7 +535,8 @@ pub fn rows_sum<const W: usize, const T: usize>(rows: [&[f32]; T], out: &mut [f3
 
 /// The window sums of `2F + 1` taps,
 /// `out[i] = ((p[i] + p[i + 2]) + ... + p[i + 2F - 2]) + src[i + 2F]`
-/// with `p[j] = src[j] + src[j + 1]` (`src` holds `out.len() + 2F` samples; with `F = 3`, the 7-tap sums
+/// with `p[j] = src[j] + src[j + 1]` (`src` holds `out.len() + 2F`
+/// samples; with `F = 3`, the 7-tap sums
 /// `((p[i] + p[i + 2]) + p[i + 4]) + src[i + 6]`), for `F` from 1 to 4:
 /// the same expression as the portable pair sums ([`rows_sum`] of the pair
 /// rows), its shifted operands formed in registers (`valignd`) from one load
