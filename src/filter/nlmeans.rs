@@ -714,7 +714,7 @@ fn distance_rows<const W: usize>(
         // Chunks of `CHUNK` samples on every tier, the AVX-512 one too: with
         // its 64-sample chunks the two lanes' sums and three channels'
         // operands did not fit the 32 registers and spilled (session 33,
-        // docs/performance.md: 0.96x the full filter's time). The width
+        // docs/performance.md: 0.948x the full filter's time). The width
         // never changes a bit (the outputs are not inputs).
         if alpha == 1.0 {
             colour_distance_pair_rgb::<CHUNK, true>(d, m, up, uq, vp, vq, consts);
