@@ -37,8 +37,9 @@
 #   bytes. FRAME="--features" changes the frame's channels (19 channels, as
 #   benches/memory.sh), ARGS="--memory-limit 256M --search-radius 3
 #   --patch-radius 1" the denoise options (default "--layers auto").
-# RADIUS=R sets the search radius (default 10; RADIUS=0 times the fixed
-# cost: the frame's stages before the kernel and the centre offset).
+# RADIUS=R sets examples/timing's search radius (default 10; RADIUS=0 times
+# the fixed cost: the frame's stages before the kernel and the centre
+# offset); the files mode takes the radius in ARGS.
 # Build an older commit's binary with e.g.
 #   git worktree add /tmp/old REV && (cd /tmp/old && cargo build --release --example timing)
 set -euo pipefail
@@ -48,12 +49,13 @@ minima() {
        END { for (k in m) print k, "min", m[k], "all", s[k] }'
 }
 how=$1; rounds=$2; mode=$3; w=$4; h=$5; shift 5
+radius=${RADIUS:-10}
 case "$how" in
   alternate)
     threads=$1; shift
     for _ in $(seq "$rounds"); do
       for b in "$@"; do
-        echo "$b $("$b" "$mode" "$w" "$h" "$threads" "${RADIUS:-10}" "${RUNS:-1}" | cut -d, -f6)"
+        echo "$b $("$b" "$mode" "$w" "$h" "$threads" "$radius" "${RUNS:-1}" | cut -d, -f6)"
       done
     done | minima
     ;;
@@ -62,8 +64,8 @@ case "$how" in
     tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
     for i in $(seq "$rounds"); do
       if [ $((i % 2)) = 0 ]; then ca=0; cb=1; else ca=1; cb=0; fi
-      taskset -c $ca "$a" "$mode" "$w" "$h" 1 "${RADIUS:-10}" "${RUNS:-2}" | cut -d, -f6 > "$tmp/a" &
-      taskset -c $cb "$b" "$mode" "$w" "$h" 1 "${RADIUS:-10}" "${RUNS:-2}" | cut -d, -f6 > "$tmp/b" &
+      taskset -c $ca "$a" "$mode" "$w" "$h" 1 "$radius" "${RUNS:-2}" | cut -d, -f6 > "$tmp/a" &
+      taskset -c $cb "$b" "$mode" "$w" "$h" 1 "$radius" "${RUNS:-2}" | cut -d, -f6 > "$tmp/b" &
       wait
       echo "$(cat "$tmp/a") $(cat "$tmp/b")" | awk '{ print $1, $2, $2 / $1 }' | tee -a "$tmp/rounds"
     done
@@ -73,7 +75,7 @@ case "$how" in
   interleave)
     a=$1; b=$2
     tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
-    one() { taskset -c "$1" "$2" "$mode" "$w" "$h" 1 "${RADIUS:-10}" "${RUNS:-1}" | cut -d, -f6; }
+    one() { taskset -c "$1" "$2" "$mode" "$w" "$h" 1 "$radius" "${RUNS:-1}" | cut -d, -f6; }
     for core in 0 1; do
       if [ "$core" = 0 ]; then first=$a; second=$b; else first=$b; second=$a; fi
       for _ in $(seq "$rounds"); do
@@ -92,7 +94,7 @@ case "$how" in
     for core in 0 1; do
       for _ in $(seq "$rounds"); do
         for m in "$@"; do
-          echo "$m $(taskset -c "$core" "$bin" "$m" "$w" "$h" 1 "${RADIUS:-10}" "${RUNS:-1}" | cut -d, -f6)"
+          echo "$m $(taskset -c "$core" "$bin" "$m" "$w" "$h" 1 "$radius" "${RUNS:-1}" | cut -d, -f6)"
         done
       done > "$tmp/core$core" &
     done
@@ -106,7 +108,7 @@ case "$how" in
     measure() {
       local s e
       s=$(date +%s%N)
-      perf stat -e task-clock -x, -o "$tmp/stat" "$1" "$mode" "$w" "$h" "$threads" "${RADIUS:-10}" "$2" >/dev/null
+      perf stat -e task-clock -x, -o "$tmp/stat" "$1" "$mode" "$w" "$h" "$threads" "$radius" "$2" >/dev/null
       e=$(date +%s%N)
       echo "$(grep task-clock "$tmp/stat" | cut -d, -f1) $(( (e - s) / 1000000 ))"
     }
