@@ -48,12 +48,13 @@ fn main() {
         .map(|(name, half)| SinkChannel { name, kind: if half { SampleKind::F16 } else { SampleKind::F32 } })
         .collect();
     let all: Vec<usize> = (0..channels.len()).collect();
-    let result = ExrSink::create(&out, frame, &channels, compression, None, 0).and_then(|mut sink| {
-        for band in frame.row_bands(64) {
-            sink.write_rows(source.read_rows(&all, band)?)?;
-        }
-        sink.finish()
-    });
+    let result = ExrSink::create(&out, frame, &channels, (compression, nldenoise::exrio::zip::OPENEXR_LEVEL), None, 0)
+        .and_then(|mut sink| {
+            for band in frame.row_bands(64) {
+                sink.write_rows(source.read_rows(&all, band)?)?;
+            }
+            sink.finish()
+        });
     match result {
         Ok(()) => eprintln!("wrote {} ({width}x{height}, {} channels)", out.display(), channels.len()),
         Err(e) => {

@@ -108,8 +108,14 @@ pub fn denoise_file_streaming(
         .collect();
     let mut opts = *opts;
     opts.out_block_rows = compression.to_exr().scan_lines_per_block();
-    let mut sink =
-        ExrSink::create(output, source.data_window(), &channels, compression, Some(source.header()), opts.threads)?;
+    let mut sink = ExrSink::create(
+        output,
+        source.data_window(),
+        &channels,
+        (compression, opts.zip_level),
+        Some(source.header()),
+        opts.threads,
+    )?;
     let stream = engine::denoise_stream(&mut source, &mut sink, &roles, params, &opts).map_err(|e| e.in_file(input))?;
     Ok((Report { halo: stream.halo, replaced: outputs, roles, repaired: stream.repaired }, stream))
 }

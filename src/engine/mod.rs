@@ -78,6 +78,8 @@ pub struct StreamOptions {
     pub half: bool,
     /// Rows per block of the sink (a hint for the memory budget).
     pub out_block_rows: usize,
+    /// The ZIP level of a file sink (`exrio::zip::LEVELS`).
+    pub zip_level: i32,
 }
 
 impl Default for StreamOptions {
@@ -88,6 +90,7 @@ impl Default for StreamOptions {
             memory_limit: budget::default_limit_bytes(),
             half: false,
             out_block_rows: 16,
+            zip_level: crate::exrio::zip::DEFAULT_LEVEL,
         }
     }
 }

@@ -370,14 +370,26 @@ impl ExrSink {
     /// The writer compresses blocks on `threads` threads of its own (0 = one
     /// per core): behind `engine::denoise_stream`, pass the engine's thread
     /// count, which `engine::budget` counts one encoder scratch for each.
+    /// ZIP blocks are deflated at `zip_level` (one of
+    /// [`zip::LEVELS`](super::zip::LEVELS), checked here).
     pub fn create(
         path: &Path,
         data_window: Rect,
         channels: &[SinkChannel],
-        compression: OutputCompression,
+        (compression, zip_level): (OutputCompression, i32),
         template: Option<&Header>,
         threads: usize,
     ) -> Result<ExrSink, Error> {
+        if !super::zip::LEVELS.contains(&zip_level) {
+            return Err(exr_err(
+                path,
+                format!(
+                    "zip level {zip_level} is not one of {}..={}",
+                    super::zip::LEVELS.start(),
+                    super::zip::LEVELS.end()
+                ),
+            ));
+        }
         if channels.is_empty() {
             return Err(exr_err(path, "refusing to write a frame with no channels"));
         }
@@ -427,7 +439,7 @@ impl ExrSink {
         let thread_path = path.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("exr-writer".into())
-            .spawn(move || write_thread(file, header, data_window, rx, &thread_path, threads))
+            .spawn(move || write_thread(file, header, data_window, rx, &thread_path, (threads, zip_level)))
             .map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
         Ok(ExrSink { path: path.to_path_buf(), target: Some(target), tx: Some(tx), thread: Some(thread), order })
     }
@@ -536,7 +548,7 @@ fn write_thread(
     dw: Rect,
     rx: mpsc::Receiver<Vec<ChannelRows>>,
     path: &Path,
-    threads: usize,
+    (threads, zip_level): (usize, i32),
 ) -> Result<(), Error> {
     let encoders = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -560,7 +572,9 @@ fn write_thread(
                     .into_par_iter()
                     .map(|(i, index)| {
                         scratch
-                            .with(|s| super::zip::compress_block(index, &meta.headers, s, || asm.lines(index)))
+                            .with(|s| {
+                                super::zip::compress_block(index, &meta.headers, s, zip_level, || asm.lines(index))
+                            })
                             .map(|c| (i, c))
                     })
                     .collect::<Result<_, _>>()

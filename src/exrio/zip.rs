@@ -5,8 +5,9 @@
 //! The bytes are prepared exactly as OpenEXR's ZIP compressor does (and as
 //! `exr` does): the block's little-endian bytes split into even and odd
 //! halves, then replaced by their differences (`+ 128`, wrapping), then
-//! zlib-compressed at OpenEXR's default level 4 with libdeflate, which
-//! OpenEXR itself uses since 3.2. A chunk that would not shrink is stored
+//! zlib-compressed with libdeflate, which OpenEXR itself uses since 3.2, at
+//! a level of the writer's choice ([`DEFAULT_LEVEL`] unless asked; OpenEXR's
+//! default is [`OPENEXR_LEVEL`]; any level gives a standard stream). A chunk that would not shrink is stored
 //! raw, as OpenEXR and `exr` do, and readers expect. The writer prepares a
 //! block straight from its rows, and the reader decodes samples straight
 //! from the two halves, so neither makes an interleaved copy of a block;
@@ -31,7 +32,19 @@ use exr::meta::header::Header;
 use exr::meta::{BlockDescription, MetaData};
 
 /// OpenEXR's default ZIP compression level (also the `exr` crate's).
-pub const LEVEL: i32 = 4;
+pub const OPENEXR_LEVEL: i32 = 4;
+
+/// The streaming writer's default level: libdeflate's fastest. On the
+/// 31-channel 1080p file run of `benches/opencv_compare.sh` it cut the
+/// run's wall time and CPU time by about 5 % against level 4, for files
+/// 0.7 % larger (two real renders' outputs: 0.9 and 1.8 % larger), since
+/// denoised `f32` samples hardly compress at any level
+/// (docs/performance.md, session 34; `cargo bench --bench zip` compares
+/// the levels).
+pub const DEFAULT_LEVEL: i32 = 1;
+
+/// The levels libdeflate takes (1 fastest, 12 smallest).
+pub const LEVELS: std::ops::RangeInclusive<i32> = 1..=12;
 
 /// Block-sized buffers, reused from block to block (see [`ScratchPool`]).
 #[derive(Default)]
@@ -81,6 +94,7 @@ pub(crate) fn compress_block<'a, I: Iterator<Item = &'a [u8]>>(
     index: BlockIndex,
     headers: &[Header],
     scratch: &mut Scratch,
+    level: i32,
     lines: impl Fn() -> I,
 ) -> exr::error::Result<Chunk> {
     let header = &headers[index.layer];
@@ -96,7 +110,7 @@ pub(crate) fn compress_block<'a, I: Iterator<Item = &'a [u8]>>(
     if prepare_lines(lines(), prepared) != Some(expected) {
         return Err(Error::Invalid("block lines do not add up to the block's size".into()));
     }
-    let n = deflate(prepared, out)?;
+    let n = deflate(prepared, out, level)?;
     // Only store the compressed bytes when they are smaller than the raw ones.
     let compressed_pixels_le = if n < expected { out[..n].to_vec() } else { lines().collect::<Vec<_>>().concat() };
     Ok(Chunk {
@@ -106,27 +120,32 @@ pub(crate) fn compress_block<'a, I: Iterator<Item = &'a [u8]>>(
 }
 
 /// OpenEXR's ZIP encoding of little-endian block bytes: [`prepare`], then a
-/// zlib stream from libdeflate at [`LEVEL`].
-pub fn encode(data: &[u8]) -> exr::error::Result<Vec<u8>> {
+/// zlib stream from libdeflate at `level` (one of [`LEVELS`]).
+pub fn encode(data: &[u8], level: i32) -> exr::error::Result<Vec<u8>> {
     let mut out = Vec::new();
-    let n = deflate(&prepare(data), &mut out)?;
+    let n = deflate(&prepare(data), &mut out, level)?;
     out.truncate(n);
     Ok(out)
 }
 
-/// The zlib stream of prepared bytes into a reused buffer: `out[..n]`.
-fn deflate(prepared: &[u8], out: &mut Vec<u8>) -> exr::error::Result<usize> {
+/// The zlib stream of prepared bytes at `level` into a reused buffer: `out[..n]`.
+fn deflate(prepared: &[u8], out: &mut Vec<u8>, level: i32) -> exr::error::Result<usize> {
     thread_local! {
-        // A compressor holds its match finder's tables: one per thread, reused.
-        static COMPRESSOR: RefCell<Option<libdeflater::Compressor>> = const { RefCell::new(None) };
+        // A compressor holds its match finder's tables: one per thread and
+        // level, reused.
+        static COMPRESSOR: RefCell<Option<(i32, libdeflater::Compressor)>> = const { RefCell::new(None) };
     }
     let fail = |what: String| Error::Invalid(format!("zip compression: {what}").into());
+    if !LEVELS.contains(&level) {
+        return Err(fail(format!("level {level} is not one of {}..={}", LEVELS.start(), LEVELS.end())));
+    }
     COMPRESSOR.with_borrow_mut(|slot| {
         let c = match slot {
-            Some(c) => c,
-            None => slot.insert(libdeflater::Compressor::new(
-                libdeflater::CompressionLvl::new(LEVEL).map_err(|e| fail(format!("{e:?}")))?,
-            )),
+            Some((l, c)) if *l == level => c,
+            _ => {
+                let lvl = libdeflater::CompressionLvl::new(level).map_err(|e| fail(format!("level {level}: {e:?}")))?;
+                &mut slot.insert((level, libdeflater::Compressor::new(lvl))).1
+            }
         };
         out.resize(c.zlib_compress_bound(prepared.len()), 0);
         c.zlib_compress(prepared, out).map_err(|e| fail(e.to_string()))
@@ -300,16 +319,33 @@ mod tests {
     /// lengths too.
     #[test]
     fn prepared_bytes_invert() {
-        for len in [0usize, 1, 2, 3, 4, 5, 17, 1000, 1001] {
+        // Every level, switching between them on one thread (its compressor is
+        // made again for a new level).
+        for (k, len) in [0usize, 1, 2, 3, 4, 5, 17, 1000, 1001, 5000].into_iter().enumerate() {
             let data: Vec<u8> = (0..len).map(|i| ((i * 7919 + 13) % 251) as u8).collect();
-            let z = encode(&data).unwrap();
-            let mut dec = Vec::new();
-            std::io::Read::read_to_end(&mut flate2::read::ZlibDecoder::new(&z[..]), &mut dec).unwrap();
-            undo_differences(&mut dec);
-            let (even, odd) = dec.split_at(len.div_ceil(2));
-            let back: Vec<u8> = (0..len).map(|i| if i % 2 == 0 { even[i / 2] } else { odd[i / 2] }).collect();
-            assert_eq!(back, data, "len {len}");
+            for level in LEVELS.map(|l| 1 + (l - 1 + k as i32) % LEVELS.end()) {
+                let z = encode(&data, level).unwrap();
+                let mut dec = Vec::new();
+                std::io::Read::read_to_end(&mut flate2::read::ZlibDecoder::new(&z[..]), &mut dec).unwrap();
+                undo_differences(&mut dec);
+                let (even, odd) = dec.split_at(len.div_ceil(2));
+                let back: Vec<u8> = (0..len).map(|i| if i % 2 == 0 { even[i / 2] } else { odd[i / 2] }).collect();
+                assert_eq!(back, data, "len {len}, level {level}");
+            }
         }
+        for level in [0, 13, -1] {
+            assert!(encode(&[1, 2, 3], level).is_err(), "level {level}");
+        }
+    }
+
+    /// The levels make different streams of the same bytes (the level is
+    /// applied), and the highest packs smaller than the fastest.
+    #[test]
+    fn levels_are_applied() {
+        let data: Vec<u8> = (0..20_000u32).map(|i| ((i * i) % 61 + (i / 7) % 3) as u8).collect();
+        let (fast, small) = (encode(&data, 1).unwrap(), encode(&data, 12).unwrap());
+        assert_ne!(fast, small);
+        assert!(small.len() < fast.len(), "level 12: {} bytes, level 1: {}", small.len(), fast.len());
     }
 
     /// Preparing a block line by line gives the bytes of preparing the
@@ -376,7 +412,7 @@ mod tests {
             // decodes to the same bytes too.
             let half = expected.data.len() / 2 / 4 * 4;
             let lines = || [&expected.data[..half], &expected.data[half..]].into_iter();
-            let ours = pool.with(|s| compress_block(expected.index, &meta.headers, s, lines)).unwrap();
+            let ours = pool.with(|s| compress_block(expected.index, &meta.headers, s, DEFAULT_LEVEL, lines)).unwrap();
             assert_eq!(pool.with(|s| with_block(ours, &meta, s, |_, d| interleave(d))).unwrap(), expected.data);
             // Damage: a truncated deflate stream, and a flipped byte inside it.
             let mut broken = chunk.clone();

@@ -90,6 +90,46 @@ fn half_output_and_explicit_options() {
     assert_eq!(den.channel("R").unwrap().kind, SampleKind::F16);
 }
 
+/// `--zip-level` reaches the writer: the fastest and the smallest levels
+/// write the same samples, the smallest in fewer bytes; a level out of
+/// range, or with `--tile-size 0` (whose encoder takes none), fails before
+/// any output.
+#[test]
+fn zip_levels_write_the_same_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |level: &str| {
+        let out = dir.path().join(format!("level{level}.exr"));
+        bin()
+            .arg("denoise")
+            .arg(fixture("cornell_0032spp.exr"))
+            .arg("-o")
+            .arg(&out)
+            .args(["--search-radius", "2", "--zip-level", level])
+            .assert()
+            .success();
+        out
+    };
+    let (fast, small) = (write("1"), write("12"));
+    let (a, b) = (exrio::read_frame(&fast).unwrap(), exrio::read_frame(&small).unwrap());
+    assert_eq!(a.channels.len(), b.channels.len());
+    for (x, y) in a.channels.iter().zip(&b.channels) {
+        assert_eq!(x.name, y.name);
+        assert!(x.samples() == y.samples(), "channel {}", x.name);
+    }
+    let size = |p: &Path| std::fs::metadata(p).unwrap().len();
+    assert!(size(&small) < size(&fast), "level 12: {} bytes, level 1: {}", size(&small), size(&fast));
+    let out = dir.path().join("bad.exr");
+    for (extra, needle) in
+        [(&["--zip-level", "0"][..], "zip-level"), (&["--zip-level", "4", "--tile-size", "0"], "--zip-level")]
+    {
+        let assert =
+            bin().arg("denoise").arg(fixture("cornell_0032spp.exr")).arg("-o").arg(&out).args(extra).assert().failure();
+        let err = String::from_utf8(assert.get_output().stderr.clone()).unwrap();
+        assert!(err.contains(needle), "stderr should mention {needle:?}: {err}");
+        assert!(!out.exists(), "no output may be written on error");
+    }
+}
+
 #[test]
 fn info_prints_roles_and_plan() {
     let out = bin()

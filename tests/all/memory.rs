@@ -22,7 +22,7 @@ fn frame_eight_times_the_limit_stays_within_it() {
         .map(|(n, h)| SinkChannel { name: n.clone(), kind: if h { SampleKind::F16 } else { SampleKind::F32 } })
         .collect();
     let all: Vec<usize> = (0..names.len()).collect();
-    let mut sink = ExrSink::create(&input, frame, &channels, OutputCompression::None, None, 0).unwrap();
+    let mut sink = ExrSink::create(&input, frame, &channels, (OutputCompression::None, 1), None, 0).unwrap();
     for band in frame.row_bands(256) {
         sink.write_rows(source.read_rows(&all, band).unwrap()).unwrap();
     }
