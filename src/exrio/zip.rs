@@ -6,9 +6,10 @@
 //! `exr` does): the block's little-endian bytes split into even and odd
 //! halves, then replaced by their differences (`+ 128`, wrapping), then
 //! zlib-compressed with libdeflate, which OpenEXR itself uses since 3.2, at
-//! a level of the writer's choice ([`DEFAULT_LEVEL`] unless asked; OpenEXR's
-//! default is [`OPENEXR_LEVEL`]; any level gives a standard stream). A chunk that would not shrink is stored
-//! raw, as OpenEXR and `exr` do, and readers expect. The writer prepares a
+//! a level of the writer's choice ([`DEFAULT_LEVEL`] unless asked;
+//! OpenEXR's default is [`OPENEXR_LEVEL`]; any level gives a standard
+//! stream). A chunk that would not shrink is stored raw, as OpenEXR and
+//! `exr` do, and readers expect. The writer prepares a
 //! block straight from its rows, and the reader decodes samples straight
 //! from the two halves, so neither makes an interleaved copy of a block;
 //! their block-sized buffers are reused through a [`ScratchPool`].
@@ -16,9 +17,9 @@
 //! Why: in a 31-channel 1080p `denoise` run, `miniz_oxide`'s deflate took
 //! 29 % of the CPU time (perf, 2026-11-22); zlib-rs cut the run's user time
 //! by 6 %, and still took about a fifth of it (2026-11-23). libdeflate at
-//! the same level encodes the same blocks in about four fifths of
-//! zlib-rs's time, into slightly fewer bytes (`cargo bench --bench zip`,
-//! `docs/performance.md`). Fresh block-sized buffers for every block made
+//! level 4 encodes the same blocks in about four fifths of zlib-rs's time,
+//! into slightly fewer bytes, and at level 1 in 0.82x its own level-4 time,
+//! into 0.5 % more (`cargo bench --bench zip`, `docs/performance.md`). Fresh block-sized buffers for every block made
 //! most of a memory-bounded run's page faults (docs/performance.md,
 //! "Session 15").
 
