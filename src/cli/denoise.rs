@@ -8,7 +8,7 @@ use anyhow::bail;
 use clap::Args;
 use nldenoise::api;
 use nldenoise::engine::{StreamOptions, budget};
-use nldenoise::exrio::{self, OutputCompression, WriteOptions};
+use nldenoise::exrio::{self, OutputCompression};
 use nldenoise::sequence;
 use tracing::{error, info};
 
@@ -60,8 +60,7 @@ pub struct DenoiseArgs {
     pub compression: OutputCompression,
     /// ZIP and ZIPS compression level, 1 (fastest, the default) to 12 (smallest files); OpenEXR's
     /// own default is 4. Denoised 32-bit channels hardly compress: on a 1080p frame with 31
-    /// channels, level 4 wrote 0.7 % fewer bytes than level 1 in about 5 % more time. Streaming
-    /// writer only (not with --tile-size 0).
+    /// channels, level 4 wrote 0.7 % fewer bytes than level 1 in about 5 % more time.
     #[arg(long, value_parser = clap::value_parser!(i32).range(1..=12))]
     pub zip_level: Option<i32>,
 }
@@ -69,13 +68,6 @@ pub struct DenoiseArgs {
 pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
     // Every argument is checked before the first frame is read.
     let params = a.filter.params()?;
-    if a.tile_size == 0 && a.zip_level.is_some() {
-        bail!(
-            "--zip-level sets the streaming writer's level; --tile-size 0 writes the whole frame with the \
-             exr crate's encoder, at OpenEXR's level {}",
-            exrio::zip::OPENEXR_LEVEL
-        );
-    }
     let jobs = sequence::plan(&a.inputs, &a.output, a.frames.as_deref())?;
     let batch = jobs.len() > 1 || jobs[0].frame.is_some();
     if batch {
@@ -190,7 +182,8 @@ fn whole_frame(a: &DenoiseArgs, params: &nldenoise::filter::Params, input: &Path
     );
     info!("{} pixels had NaN, infinite or out-of-range inputs and were repaired", report.repaired);
     let t2 = Instant::now();
-    exrio::write_frame(output, &frame, &WriteOptions { compression: a.compression, ..Default::default() })?;
+    let level = a.zip_level.unwrap_or(exrio::zip::DEFAULT_LEVEL);
+    exrio::stream::write_frame_streamed(output, &frame, (a.compression, level), a.threads)?;
     info!("wrote {} in {:.2}s", output.display(), t2.elapsed().as_secs_f64());
     Ok(())
 }

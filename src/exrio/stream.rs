@@ -679,6 +679,47 @@ impl RowSource for FrameSource<'_> {
     }
 }
 
+/// Write `frame` at `path` through the streaming writer ([`ExrSink`]):
+/// scanline blocks in increasing y, ZIP chunks deflated with libdeflate at
+/// `zip_level` on `threads` encoder threads (0 = one per core), written
+/// atomically, with the frame's attributes (sanitised as
+/// [`write_frame`](super::write_frame) does). What `denoise --tile-size 0`
+/// writes: `write_frame` encodes with the `exr` crate's own ZIP encoder, at
+/// OpenEXR's level only.
+pub fn write_frame_streamed(
+    path: &Path,
+    frame: &super::Frame,
+    (compression, zip_level): (OutputCompression, i32),
+    threads: usize,
+) -> Result<(), Error> {
+    let dw = frame.data_window;
+    let template = (frame.image_attributes.is_some() || frame.layer_attributes.is_some()).then(|| {
+        let mut h = Header::new(Text::from("main"), Vec2(dw.width(), dw.height()), SmallVec::new());
+        match &frame.image_attributes {
+            Some(a) => h.shared_attributes = a.clone(),
+            None => {
+                h.shared_attributes.display_window = exr::meta::attribute::IntegerBounds::new(
+                    Vec2(dw.x0 as i32, dw.y0 as i32),
+                    Vec2(dw.width(), dw.height()),
+                )
+            }
+        }
+        if let Some(a) = &frame.layer_attributes {
+            h.own_attributes = a.clone();
+        }
+        h
+    });
+    let channels: Vec<SinkChannel> =
+        frame.channels.iter().map(|c| SinkChannel { name: c.name.clone(), kind: c.kind }).collect();
+    let mut sink = ExrSink::create(path, dw, &channels, (compression, zip_level), template.as_ref(), threads)?;
+    let mut source = FrameSource::new(frame);
+    let all: Vec<usize> = (0..channels.len()).collect();
+    for band in dw.row_bands(64) {
+        sink.write_rows(source.read_rows(&all, band)?)?;
+    }
+    sink.finish()
+}
+
 /// A [`RowSink`] that drops the rows (benchmarks) and counts them.
 #[derive(Default)]
 pub struct NullSink {

@@ -90,42 +90,51 @@ fn half_output_and_explicit_options() {
     assert_eq!(den.channel("R").unwrap().kind, SampleKind::F16);
 }
 
-/// `--zip-level` reaches the writer: the fastest and the smallest levels
-/// write the same samples, the smallest in fewer bytes; a level out of
-/// range, or with `--tile-size 0` (whose encoder takes none), fails before
+/// `--zip-level` reaches the writer, streaming or whole-frame
+/// (`--tile-size 0`): the fastest and the smallest levels write the same
+/// samples, the smallest in fewer bytes; a level out of range fails before
 /// any output.
 #[test]
 fn zip_levels_write_the_same_samples() {
     let dir = tempfile::tempdir().unwrap();
-    let write = |level: &str| {
-        let out = dir.path().join(format!("level{level}.exr"));
+    let write = |level: &str, tile: &str| {
+        let out = dir.path().join(format!("level{level}-tile{tile}.exr"));
         bin()
             .arg("denoise")
             .arg(fixture("cornell_0032spp.exr"))
             .arg("-o")
             .arg(&out)
-            .args(["--search-radius", "2", "--zip-level", level])
+            .args(["--search-radius", "2", "--zip-level", level, "--tile-size", tile])
             .assert()
             .success();
         out
     };
-    let (fast, small) = (write("1"), write("12"));
-    let (a, b) = (exrio::read_frame(&fast).unwrap(), exrio::read_frame(&small).unwrap());
-    assert_eq!(a.channels.len(), b.channels.len());
-    for (x, y) in a.channels.iter().zip(&b.channels) {
-        assert_eq!(x.name, y.name);
-        assert!(x.samples() == y.samples(), "channel {}", x.name);
-    }
     let size = |p: &Path| std::fs::metadata(p).unwrap().len();
-    assert!(size(&small) < size(&fast), "level 12: {} bytes, level 1: {}", size(&small), size(&fast));
+    let first = exrio::read_frame(&write("1", "512")).unwrap();
+    for tile in ["512", "0"] {
+        let (fast, small) = (write("1", tile), write("12", tile));
+        for path in [&fast, &small] {
+            let frame = exrio::read_frame(path).unwrap();
+            assert_eq!(frame.channels.len(), first.channels.len());
+            for (x, y) in frame.channels.iter().zip(&first.channels) {
+                assert_eq!(x.name, y.name);
+                assert!(x.samples() == y.samples(), "{}: channel {}", path.display(), x.name);
+            }
+        }
+        assert!(size(&small) < size(&fast), "tile {tile}: level 12 {} bytes, level 1 {}", size(&small), size(&fast));
+    }
     let out = dir.path().join("bad.exr");
-    for (extra, needle) in
-        [(&["--zip-level", "0"][..], "zip-level"), (&["--zip-level", "4", "--tile-size", "0"], "--zip-level")]
-    {
-        let assert =
-            bin().arg("denoise").arg(fixture("cornell_0032spp.exr")).arg("-o").arg(&out).args(extra).assert().failure();
+    for level in ["0", "13"] {
+        let assert = bin()
+            .arg("denoise")
+            .arg(fixture("cornell_0032spp.exr"))
+            .arg("-o")
+            .arg(&out)
+            .args(["--zip-level", level])
+            .assert()
+            .failure();
         let err = String::from_utf8(assert.get_output().stderr.clone()).unwrap();
-        assert!(err.contains(needle), "stderr should mention {needle:?}: {err}");
+        assert!(err.contains("zip-level"), "stderr should mention the option: {err}");
         assert!(!out.exists(), "no output may be written on error");
     }
 }
