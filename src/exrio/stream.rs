@@ -380,15 +380,8 @@ impl ExrSink {
         template: Option<&Header>,
         threads: usize,
     ) -> Result<ExrSink, Error> {
-        if !super::zip::LEVELS.contains(&zip_level) {
-            return Err(exr_err(
-                path,
-                format!(
-                    "zip level {zip_level} is not one of {}..={}",
-                    super::zip::LEVELS.start(),
-                    super::zip::LEVELS.end()
-                ),
-            ));
+        if let Some(e) = super::zip::level_error(zip_level) {
+            return Err(exr_err(path, e));
         }
         if channels.is_empty() {
             return Err(exr_err(path, "refusing to write a frame with no channels"));

@@ -47,6 +47,11 @@ pub const DEFAULT_LEVEL: i32 = 1;
 /// The levels libdeflate takes (1 fastest, 12 smallest).
 pub const LEVELS: std::ops::RangeInclusive<i32> = 1..=12;
 
+/// What is wrong with `level`, when it is not one of [`LEVELS`].
+pub fn level_error(level: i32) -> Option<String> {
+    (!LEVELS.contains(&level)).then(|| format!("zip level {level} is not one of {}..={}", LEVELS.start(), LEVELS.end()))
+}
+
 /// Block-sized buffers, reused from block to block (see [`ScratchPool`]).
 #[derive(Default)]
 pub struct Scratch {
@@ -137,8 +142,8 @@ fn deflate(prepared: &[u8], out: &mut Vec<u8>, level: i32) -> exr::error::Result
         static COMPRESSOR: RefCell<Option<(i32, libdeflater::Compressor)>> = const { RefCell::new(None) };
     }
     let fail = |what: String| Error::Invalid(format!("zip compression: {what}").into());
-    if !LEVELS.contains(&level) {
-        return Err(fail(format!("level {level} is not one of {}..={}", LEVELS.start(), LEVELS.end())));
+    if let Some(e) = level_error(level) {
+        return Err(fail(e));
     }
     COMPRESSOR.with_borrow_mut(|slot| {
         let c = match slot {

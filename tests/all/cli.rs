@@ -110,9 +110,11 @@ fn zip_levels_write_the_same_samples() {
         out
     };
     let size = |p: &Path| std::fs::metadata(p).unwrap().len();
-    let first = exrio::read_frame(&write("1", "512")).unwrap();
+    let mut first = None;
     for tile in ["512", "0"] {
         let (fast, small) = (write("1", tile), write("12", tile));
+        // Every file's samples against the first one's (streaming, level 1).
+        let first = first.get_or_insert_with(|| exrio::read_frame(&fast).unwrap());
         for path in [&fast, &small] {
             let frame = exrio::read_frame(path).unwrap();
             assert_eq!(frame.channels.len(), first.channels.len());
