@@ -12,8 +12,10 @@
 //!   for each of the bands whose tiles it has queued (`in_flight`: two when
 //!   they fit the limit, else one);
 //! * tile working sets: `threads × 4 × (tile + 2h) × window × filter_planes × 4`
-//!   (cropped inputs plus the filter's intermediates, the guides' half-float
-//!   copies counted as half a plane per feature channel);
+//!   (the filter's intermediates, the guides' half-float copies counted as
+//!   half a plane per feature channel, and room for a copy of the tile's
+//!   window of inputs: tiles read the band's planes in place, but one that
+//!   repairs a sample filters a repaired copy);
 //! * band outputs (`f32` denoised channels plus the rest), `depth + 1 +
 //!   in_flight` of them: the bands being filtered, one finished and waiting
 //!   for the writer, and `depth` queued;

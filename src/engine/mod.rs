@@ -16,7 +16,6 @@
 pub mod budget;
 pub mod synthetic;
 
-use std::borrow::Cow;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -468,7 +467,7 @@ struct BandCtx<'a> {
 /// A band being filtered, shared by its tile tasks.
 struct BandWork {
     band: Rect,
-    inputs: FrameInputs,
+    inputs: Arc<FrameInputs>,
     tiles: Vec<Rect>,
     /// The denoised channels over the band, each tile pasted in as it finishes.
     out_planes: Mutex<Vec<Plane>>,
@@ -588,7 +587,7 @@ fn prepare_band(
     counters.filtered_px += tiles.iter().map(|t| t.expand(ctx.halo).intersect(&ctx.frame).area()).sum::<usize>();
     let work = BandWork {
         band,
-        inputs,
+        inputs: Arc::new(inputs),
         tiles,
         out_planes: Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect()),
         repaired: AtomicUsize::new(0),
@@ -627,8 +626,8 @@ fn start_tile<'s>(
         let _ = report.0.send(Err(Error::Internal("cancelled".into())));
         return;
     }
-    let window = band.inputs.crop(tile.expand(ctx.halo).intersect(&ctx.frame));
-    let region = match PreparedRegion::new(Cow::Owned(window), ctx.frame, tile, ctx.params) {
+    // The tile reads the band's planes in place (no copy of its window).
+    let region = match PreparedRegion::shared(Arc::clone(&band.inputs), ctx.frame, tile, ctx.params) {
         Ok(region) => region,
         Err(e) => {
             let _ = report.0.send(Err(e));

@@ -20,6 +20,7 @@ pub use features::Feature;
 pub use variance::VarianceSource;
 
 use std::borrow::Cow;
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
@@ -393,13 +394,33 @@ pub fn denoise_region(inputs: &FrameInputs, frame: Rect, out: Rect, params: &Par
     Ok(region.finish(blocks))
 }
 
+/// The inputs a [`PreparedRegion`] reads: borrowed, its own (a copy, or
+/// repaired), or shared with other regions.
+enum RegionInputs<'a> {
+    Borrowed(&'a FrameInputs),
+    Owned(FrameInputs),
+    Shared(Arc<FrameInputs>),
+}
+
+impl std::ops::Deref for RegionInputs<'_> {
+    type Target = FrameInputs;
+
+    fn deref(&self) -> &FrameInputs {
+        match self {
+            RegionInputs::Borrowed(i) => i,
+            RegionInputs::Owned(i) => i,
+            RegionInputs::Shared(i) => i,
+        }
+    }
+}
+
 /// A region of [`denoise_region`] ready for the NL-means kernel: inputs
 /// checked and repaired, variances prefiltered, guides prepared. Its
 /// [`blocks`](Self::blocks) can be filtered in any order, on any thread
 /// (each a function of frame coordinates only), and [`finish`](Self::finish)
 /// assembles them: the same bits as [`denoise_region`].
 pub struct PreparedRegion<'a> {
-    inputs: Cow<'a, FrameInputs>,
+    inputs: RegionInputs<'a>,
     variances: Vec<Vec<Plane>>,
     guides: Vec<GuideFeature>,
     frame: Rect,
@@ -412,6 +433,21 @@ impl<'a> PreparedRegion<'a> {
     /// Check `inputs` (as [`denoise_region`]) and run every stage before the
     /// kernel: the repair, the variance prefilter, the guides.
     pub fn new(inputs: Cow<'a, FrameInputs>, frame: Rect, out: Rect, params: &Params) -> Result<Self, Error> {
+        let inputs = match inputs {
+            Cow::Borrowed(i) => RegionInputs::Borrowed(i),
+            Cow::Owned(i) => RegionInputs::Owned(i),
+        };
+        Self::prepare(inputs, frame, out, params)
+    }
+
+    /// [`new`](Self::new) on inputs shared with other regions (the
+    /// engine's band, which each of its tiles reads in place instead of a
+    /// copy of its window): the same bits.
+    pub fn shared(inputs: Arc<FrameInputs>, frame: Rect, out: Rect, params: &Params) -> Result<Self, Error> {
+        Self::prepare(RegionInputs::Shared(inputs), frame, out, params)
+    }
+
+    fn prepare(inputs: RegionInputs<'a>, frame: Rect, out: Rect, params: &Params) -> Result<Self, Error> {
         let region = |inputs, variances, guides, repaired| PreparedRegion {
             inputs,
             variances,
@@ -432,11 +468,12 @@ impl<'a> PreparedRegion<'a> {
         }
         let main_rect = out.expand(pipeline.main_radius()).intersect(&frame);
         let rho = params.variance_prefilter_radius;
-        let (fixed, repaired) = match repair::repair_inputs(&inputs, frame, out) {
+        let window = out.expand(pipeline.halo()).intersect(&frame);
+        let (fixed, repaired) = match repair::repair_inputs(&inputs, frame, window, out) {
             (Cow::Owned(fixed), n) => (Some(fixed), n),
             (Cow::Borrowed(_), n) => (None, n),
         };
-        let inputs = fixed.map_or(inputs, Cow::Owned);
+        let inputs = fixed.map_or(inputs, RegionInputs::Owned);
         let variances: Vec<Vec<Plane>> = buffers(&inputs)
             .iter()
             .map(|b| variance::prefiltered(&b.variance, b.values.len(), frame, rho, main_rect))

@@ -97,8 +97,17 @@ fn repair_plane(p: &Plane, role: SampleRole, frame: Rect, mask: &mut Mask) -> Op
     Some(out)
 }
 
-fn all_usable(inputs: &FrameInputs) -> bool {
-    let ok = |planes: &[Plane], role| planes.iter().all(|p| p.data().iter().all(|&v| usable(role, v)));
+/// Whether every sample of `inputs` inside `window` is usable.
+fn all_usable(inputs: &FrameInputs, window: Rect) -> bool {
+    // Each chunk's test without a branch per sample (`&`, not `&&`), so
+    // that it compiles to vector compares.
+    let chunk_ok = |c: &[f32], role| c.iter().fold(true, |ok, &v| ok & usable(role, v));
+    let ok = |planes: &[Plane], role| {
+        planes.iter().all(|p| {
+            let r = window.intersect(&p.rect());
+            (r.y0..r.y1).all(|y| p.row(y, r.x0, r.x1).chunks(256).all(|c| chunk_ok(c, role)))
+        })
+    };
     let buffer_ok = |b: &Buffer| {
         ok(&b.values, SampleRole::Value)
             && match &b.variance {
@@ -113,12 +122,23 @@ fn all_usable(inputs: &FrameInputs) -> bool {
         })
 }
 
-/// `inputs` with every unusable sample repaired (borrowed unchanged when there
-/// are none), and the number of pixels of `count_rect` that had a sample repaired.
-pub fn repair_inputs(inputs: &FrameInputs, frame: Rect, count_rect: Rect) -> (Cow<'_, FrameInputs>, usize) {
-    if all_usable(inputs) {
+/// `inputs` inside `window` (the samples the stages read, and the repair's
+/// own reach) with every unusable sample repaired: borrowed unchanged, whole,
+/// when there are none there, else cropped to `window` and repaired; and the
+/// number of pixels of `count_rect` that had a sample repaired. Samples
+/// outside `window` are never read by the stages, so neither their
+/// usability nor the crop changes a bit of the output.
+pub fn repair_inputs(
+    inputs: &FrameInputs,
+    frame: Rect,
+    window: Rect,
+    count_rect: Rect,
+) -> (Cow<'_, FrameInputs>, usize) {
+    if all_usable(inputs, window) {
         return (Cow::Borrowed(inputs), 0);
     }
+    let cropped = inputs.crop(window);
+    let inputs = &cropped;
     let mut mask = Mask { rect: count_rect, hit: vec![false; count_rect.area()] };
     let mut planes = |v: &[Plane], role: SampleRole| -> Vec<Plane> {
         v.iter().map(|p| repair_plane(p, role, frame, &mut mask).unwrap_or_else(|| p.clone())).collect()
