@@ -167,3 +167,53 @@ pub fn repair_inputs(
     let repaired = mask.hit.iter().filter(|&&h| h).count();
     (Cow::Owned(FrameInputs { colour, features, layers }), repaired)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Inputs over `rect`: one colour channel with its sample variance and
+    /// a one-channel feature, each sample from `f(plane, x, y)`.
+    fn inputs(rect: Rect, f: impl Fn(usize, i64, i64) -> f32) -> FrameInputs {
+        let plane = |i: usize| Plane::from_fn(rect, |x, y| f(i, x, y));
+        FrameInputs {
+            colour: Buffer {
+                name: "beauty".into(),
+                values: vec![plane(0)],
+                variance: VarianceSource::Sample(vec![plane(1)]),
+            },
+            features: vec![Feature { name: "Z".into(), values: vec![plane(2)], variance: None }],
+            layers: Vec::new(),
+        }
+    }
+
+    /// Only the window's samples decide: an unusable sample outside it
+    /// leaves the inputs borrowed whole; one inside gives the window's
+    /// samples, cropped, with that sample repaired from its neighbours and
+    /// its pixel counted.
+    #[test]
+    fn only_the_window_is_scanned_and_repaired() {
+        let frame = Rect::from_origin_size(0, 0, 40, 30);
+        let window = Rect::from_origin_size(10, 5, 12, 8);
+        let bad = |at: (i64, i64)| {
+            inputs(frame, move |i, x, y| match (i, (x, y) == at) {
+                (1, true) => -1.0,
+                (1, false) => 0.5,
+                _ => (x + 2 * y) as f32,
+            })
+        };
+        let outside = bad((9, 5));
+        let (got, n) = repair_inputs(&outside, frame, window, window);
+        assert!(matches!(got, Cow::Borrowed(_)) && n == 0, "a bad sample outside the window");
+        let inside = bad((10, 5));
+        let (got, n) = repair_inputs(&inside, frame, window, window);
+        let Cow::Owned(fixed) = got else { panic!("a bad sample inside the window was not repaired") };
+        assert_eq!(n, 1);
+        let var = &fixed.colour.variance.planes()[0];
+        assert_eq!(var.rect(), window, "the repaired inputs are the window's");
+        // The mean of its usable neighbours inside the window (the 3x3
+        // neighbourhood clipped to the crop; never read by a stage there).
+        assert_eq!(var.get(10, 5), 0.5);
+        assert_eq!(fixed.colour.values[0].get(11, 6), inside.colour.values[0].get(11, 6));
+    }
+}
