@@ -9,7 +9,10 @@ cd "$(dirname "$0")/.."
 THREADS=${1:-2}; ROUNDS=${2:-3}; shift $(( $# > 2 ? 2 : $# )) || true
 venv=target/opencv-venv
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-"$venv/bin/pip" install -q opencv-python-headless numpy "openexr>=3.3"
+# One OpenCV release for every run, so that its time stays the same
+# reference from machine to machine (docs/performance.md names the release
+# of each run); OPENCV="opencv-python-headless==X" compares another.
+"$venv/bin/pip" install -q "${OPENCV:-opencv-python-headless==5.1.0.95}" numpy "openexr>=3.3"
 cargo build --release --bin nldenoise --example make_big_frame --example timing >/dev/null 2>&1
 frame=target/opencv-compare-1080p-layers.exr
 [ -f "$frame" ] || ./target/release/examples/make_big_frame 1920 1080 "$frame" --features --layers
