@@ -61,8 +61,15 @@ pub struct DenoiseArgs {
     /// ZIP and ZIPS compression level, 1 (fastest) to 12 (smallest files); OpenEXR's own
     /// default is 4. Denoised 32-bit channels hardly compress: on a 1080p frame with 31
     /// channels, level 4 wrote 0.7 % fewer bytes than level 1 in about 5 % more time.
-    #[arg(long, default_value_t = exrio::zip::DEFAULT_LEVEL, value_parser = clap::value_parser!(i32).range(1..=12))]
+    #[arg(long, default_value_t = exrio::zip::DEFAULT_LEVEL, value_parser = zip_levels())]
     pub zip_level: i32,
+}
+
+/// `--zip-level`'s parser: the levels of [`exrio::zip::LEVELS`] (clap's
+/// ranges take `i64` bounds).
+fn zip_levels() -> clap::builder::RangedI64ValueParser<i32> {
+    let levels = exrio::zip::LEVELS;
+    clap::value_parser!(i32).range(i64::from(*levels.start())..=i64::from(*levels.end()))
 }
 
 pub fn run(a: DenoiseArgs) -> anyhow::Result<()> {
