@@ -148,18 +148,23 @@ pub fn prepare(feature: &Feature, s: &GuideSettings, frame: Rect, guide_rect: Re
     let has_var = feature.variance.is_some();
     let n = feature.values.len();
     let var_src = feature.variance.clone().map(variance::VarianceSource::Sample);
-    let values: Vec<Plane> = match (&var_src, s.prefilter) {
+    let use_variance = s.use_variance && has_var;
+    let (values, variance): (Vec<Plane>, Option<Vec<Plane>>) = match (&var_src, s.prefilter) {
         (Some(src), Some(ps)) => {
             let pre_rect = guide_rect.expand(ps.radius()).intersect(&frame);
             let var_pre = variance::prefiltered(src, n, frame, s.variance_prefilter_radius, pre_rect);
             let job = Job { values: feature.values.iter().collect(), variance: var_pre.iter().collect() };
-            nlmeans(&[job], &[], frame, guide_rect, &ps).pop().expect("one job")
+            let values = nlmeans(&[job], &[], frame, guide_rect, &ps).pop().expect("one job");
+            // The prefiltered variance on `guide_rect` is this one's crop: a
+            // pixel's box does not depend on the rectangle it is evaluated on.
+            (values, use_variance.then(|| var_pre.iter().map(|p| p.crop(guide_rect)).collect()))
         }
-        _ => feature.values.iter().map(|p| p.crop(guide_rect)).collect(),
-    };
-    let variance = match (&var_src, s.use_variance && has_var) {
-        (Some(src), true) => Some(variance::prefiltered(src, n, frame, s.variance_prefilter_radius, guide_rect)),
-        _ => None,
+        (src, _) => (
+            feature.values.iter().map(|p| p.crop(guide_rect)).collect(),
+            src.as_ref()
+                .filter(|_| use_variance)
+                .map(|src| variance::prefiltered(src, n, frame, s.variance_prefilter_radius, guide_rect)),
+        ),
     };
     let grad = squared_gradient(&values, frame, den_rect);
     let kf2 = s.feature_strength * s.feature_strength;

@@ -1,6 +1,8 @@
 //! Variance of the mean (SPEC §1): from a sample-variance buffer or from two
 //! half buffers, and the variance prefilter `v' = max(v, box_rho(v))`.
 
+use std::borrow::Cow;
+
 use super::kernels::box_mean;
 use crate::geom::Rect;
 use crate::image::Plane;
@@ -22,14 +24,24 @@ pub enum VarianceSource {
 impl VarianceSource {
     /// The raw variance of channel `c` on `rect` (which the source must cover).
     pub fn raw(&self, c: usize, rect: Rect) -> Plane {
+        match self.raw_covering(c, rect) {
+            Cow::Borrowed(p) => p.crop(rect),
+            Cow::Owned(p) => p,
+        }
+    }
+
+    /// The raw variance of channel `c` on at least `rect`: a sample variance's
+    /// own plane, borrowed whole (no copy), or the half buffers' difference
+    /// computed on `rect`.
+    fn raw_covering(&self, c: usize, rect: Rect) -> Cow<'_, Plane> {
         match self {
-            VarianceSource::Sample(v) => v[c].crop(rect),
+            VarianceSource::Sample(v) => Cow::Borrowed(&v[c]),
             VarianceSource::Halves { a, b } => {
                 let (a, b) = (&a[c], &b[c]);
-                Plane::from_fn(rect, |x, y| {
+                Cow::Owned(Plane::from_fn(rect, |x, y| {
                     let d = a.get(x, y) - b.get(x, y);
                     (d * d) * 0.25
-                })
+                }))
             }
         }
     }
@@ -64,10 +76,9 @@ pub fn prefilter(raw: &Plane, frame: Rect, rho: usize, target: Rect) -> Plane {
     box_mean(raw.data(), raw.rect(), frame, rho, target, &mut out, &mut scratch);
     let mut plane = Plane::from_vec(target, out).expect("target-sized buffer");
     for y in target.y0..target.y1 {
-        for x in target.x0..target.x1 {
-            let v = raw.get(x, y);
-            let b = plane.get(x, y);
-            plane.set(x, y, if v > b { v } else { b });
+        let v = raw.row(y, target.x0, target.x1);
+        for (b, &v) in plane.row_mut(y, target.x0, target.x1).iter_mut().zip(v) {
+            *b = if v > *b { v } else { *b };
         }
     }
     plane
@@ -76,5 +87,5 @@ pub fn prefilter(raw: &Plane, frame: Rect, rho: usize, target: Rect) -> Plane {
 /// Raw variance of every channel on `(target ⊕ rho) ∩ frame`, prefiltered onto `target`.
 pub fn prefiltered(src: &VarianceSource, channels: usize, frame: Rect, rho: usize, target: Rect) -> Vec<Plane> {
     let raw_rect = target.expand(rho).intersect(&frame);
-    (0..channels).map(|c| prefilter(&src.raw(c, raw_rect), frame, rho, target)).collect()
+    (0..channels).map(|c| prefilter(&src.raw_covering(c, raw_rect), frame, rho, target)).collect()
 }
