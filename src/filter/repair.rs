@@ -21,7 +21,7 @@
 
 use std::borrow::Cow;
 
-use super::{Buffer, Feature, FrameInputs, VarianceSource};
+use super::{Buffer, FrameInputs, VarianceSource};
 use crate::geom::Rect;
 use crate::image::Plane;
 
@@ -137,39 +137,40 @@ pub fn repair_inputs(
     if all_usable(inputs, window) {
         return (Cow::Borrowed(inputs), 0);
     }
-    let cropped = inputs.crop(window);
-    let inputs = &cropped;
+    // The window's samples, copied once; a plane with an unusable sample is
+    // replaced by its repaired copy (the repair reads the original samples).
+    let mut fixed = inputs.crop(window);
     let mut mask = Mask { rect: count_rect, hit: vec![false; count_rect.area()] };
-    let mut planes = |v: &[Plane], role: SampleRole| -> Vec<Plane> {
-        v.iter().map(|p| repair_plane(p, role, frame, &mut mask).unwrap_or_else(|| p.clone())).collect()
-    };
-    let mut buffer = |b: &Buffer| Buffer {
-        name: b.name.clone(),
-        values: planes(&b.values, SampleRole::Value),
-        variance: match &b.variance {
-            VarianceSource::Sample(v) => VarianceSource::Sample(planes(v, SampleRole::Variance)),
-            VarianceSource::Halves { a, b } => {
-                VarianceSource::Halves { a: planes(a, SampleRole::Value), b: planes(b, SampleRole::Value) }
+    let mut repair = |v: &mut [Plane], role: SampleRole| {
+        for p in v {
+            if let Some(r) = repair_plane(p, role, frame, &mut mask) {
+                *p = r;
             }
-        },
+        }
     };
-    let colour = buffer(&inputs.colour);
-    let layers = inputs.layers.iter().map(&mut buffer).collect();
-    let features = inputs
-        .features
-        .iter()
-        .map(|f| Feature {
-            name: f.name.clone(),
-            values: planes(&f.values, SampleRole::Value),
-            variance: f.variance.as_deref().map(|v| planes(v, SampleRole::Variance)),
-        })
-        .collect();
+    for b in std::iter::once(&mut fixed.colour).chain(fixed.layers.iter_mut()) {
+        repair(&mut b.values, SampleRole::Value);
+        match &mut b.variance {
+            VarianceSource::Sample(v) => repair(v, SampleRole::Variance),
+            VarianceSource::Halves { a, b } => {
+                repair(a, SampleRole::Value);
+                repair(b, SampleRole::Value);
+            }
+        }
+    }
+    for f in &mut fixed.features {
+        repair(&mut f.values, SampleRole::Value);
+        if let Some(v) = f.variance.as_deref_mut() {
+            repair(v, SampleRole::Variance);
+        }
+    }
     let repaired = mask.hit.iter().filter(|&&h| h).count();
-    (Cow::Owned(FrameInputs { colour, features, layers }), repaired)
+    (Cow::Owned(fixed), repaired)
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::Feature;
     use super::*;
 
     /// Inputs over `rect`: one colour channel with its sample variance and
