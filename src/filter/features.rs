@@ -251,4 +251,53 @@ mod tests {
             }
         }
     }
+
+    /// The guide's variance is the variance prefilter evaluated on the guide
+    /// rectangle, bit for bit, whether or not the NL-means prefilter runs
+    /// (which computes it on a larger rectangle and crops it), at the
+    /// frame's edges and inside.
+    #[test]
+    fn the_guides_variance_is_the_prefilter_on_the_guide_rectangle() {
+        let frame = Rect::from_origin_size(-4, 3, 40, 30);
+        // Finite values and non-negative variances, as after the repair.
+        let finite = |seed| {
+            let p = plane(frame, seed);
+            Plane::from_fn(frame, |x, y| {
+                let v = p.get(x, y);
+                if v.is_finite() { v.abs() } else { 0.5 }
+            })
+        };
+        let feature = Feature {
+            name: "N".into(),
+            values: vec![finite(1), finite(2)],
+            variance: Some(vec![finite(3), finite(4)]),
+        };
+        let src = variance::VarianceSource::Sample(feature.variance.clone().expect("a variance"));
+        let prefilter = NlmSettings { search_radius: 2, patch_radius: 1, strength: 0.45, alpha: 1.0, eps: 1e-10 };
+        for rho in [0, 1, 2] {
+            for pre in [None, Some(prefilter)] {
+                let s = GuideSettings {
+                    feature_strength: 0.6,
+                    tau: 1e-3,
+                    use_variance: true,
+                    variance_prefilter_radius: rho,
+                    prefilter: pre,
+                };
+                for guide_rect in [frame, Rect::from_origin_size(0, 8, 20, 12), Rect::from_origin_size(-4, 20, 9, 13)] {
+                    // The gradients read one pixel around the denominators.
+                    let r = guide_rect;
+                    let den_rect = Rect { x0: r.x0 + 1, y0: r.y0 + 1, x1: r.x1 - 1, y1: r.y1 - 1 };
+                    let g = prepare(&feature, &s, frame, guide_rect, den_rect);
+                    let want = variance::prefiltered(&src, 2, frame, rho, guide_rect);
+                    let got = g.variance.expect("the guide reads its variance");
+                    assert_eq!(got.len(), 2);
+                    for (c, (a, b)) in got.iter().zip(&want).enumerate() {
+                        assert_eq!(a.rect(), guide_rect, "rho {rho}, prefilter {pre:?}");
+                        let bits = |p: &Plane| p.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(bits(a), bits(b), "channel {c}, rho {rho}, prefilter {pre:?}, {guide_rect:?}");
+                    }
+                }
+            }
+        }
+    }
 }
