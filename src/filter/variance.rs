@@ -35,7 +35,10 @@ impl VarianceSource {
     /// computed on `rect`.
     fn raw_covering(&self, c: usize, rect: Rect) -> Cow<'_, Plane> {
         match self {
-            VarianceSource::Sample(v) => Cow::Borrowed(&v[c]),
+            VarianceSource::Sample(v) => {
+                assert!(v[c].rect().contains_rect(&rect), "variance {:?} does not cover {rect:?}", v[c].rect());
+                Cow::Borrowed(&v[c])
+            }
             VarianceSource::Halves { a, b } => {
                 let (a, b) = (&a[c], &b[c]);
                 Cow::Owned(Plane::from_fn(rect, |x, y| {
