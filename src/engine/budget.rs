@@ -113,8 +113,10 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     // The reader: blocks being decompressed and decoded, one per thread, twice
     // (a chunk's compressed bytes are freed once inflated).
     let decoding = b.threads as u64 * 2 * w * b.block_rows as u64 * b.bytes_all as u64;
-    // The kernel's blocks: one per thread at a time.
-    let kernel = b.threads as u64 * b.kernel.bytes(tile as usize, band_rows);
+    // The kernel's blocks: one per thread at a time, as tall as the engine
+    // cuts them for this many threads.
+    let block_rows = band_rows.min(crate::filter::nlmeans::block_rows(b.threads));
+    let kernel = b.threads as u64 * b.kernel.bytes(tile as usize, block_rows);
     BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding + kernel
 }
 

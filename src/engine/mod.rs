@@ -27,7 +27,7 @@ use tracing::{debug, info, info_span};
 
 use crate::error::Error;
 use crate::exrio::roles::ChannelRoles;
-use crate::filter::nlmeans::ScratchShape;
+use crate::filter::nlmeans::{self, ScratchShape};
 use crate::filter::{FrameInputs, Params, Pipeline, PreparedRegion};
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Plane, Samples};
@@ -343,6 +343,7 @@ pub fn denoise_stream(
                 names: names_ref,
                 cp: cp_ref,
                 half: opts.half,
+                threads,
                 kernel_ns: AtomicU64::new(0),
             };
             let mut counters = FilterCounters::default();
@@ -460,6 +461,8 @@ struct BandCtx<'a> {
     names: &'a [String],
     cp: &'a ChannelPlan,
     half: bool,
+    /// The pool's threads.
+    threads: usize,
     /// Nanoseconds the workers spent in kernel blocks, summed.
     kernel_ns: AtomicU64,
 }
@@ -469,6 +472,8 @@ struct BandWork {
     band: Rect,
     inputs: Arc<FrameInputs>,
     tiles: Vec<Rect>,
+    /// The height of its tiles' kernel blocks.
+    block_rows: usize,
     /// The denoised channels over the band, each tile pasted in as it finishes.
     out_planes: Mutex<Vec<Plane>>,
     repaired: AtomicUsize,
@@ -583,12 +588,14 @@ fn prepare_band(
     });
     drop(planes);
     let tiles = band.tiles(ctx.plan.tile_width, ctx.plan.band_rows);
+    let block_rows = nlmeans::block_rows(ctx.threads);
     counters.tiles += tiles.len();
     counters.filtered_px += tiles.iter().map(|t| t.expand(ctx.halo).intersect(&ctx.frame).area()).sum::<usize>();
     let work = BandWork {
         band,
         inputs: Arc::new(inputs),
         tiles,
+        block_rows,
         out_planes: Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect()),
         repaired: AtomicUsize::new(0),
     };
@@ -604,7 +611,7 @@ struct TileWork<'a> {
     band: Arc<BandWork>,
     tile: Rect,
     region: PreparedRegion<'static>,
-    /// Each block's result, in the order of `region.blocks()`.
+    /// Each block's result, in the order of its blocks.
     results: Mutex<Vec<Option<Vec<Vec<Plane>>>>>,
     remaining: AtomicUsize,
     report: TileReport<'a>,
@@ -634,7 +641,7 @@ fn start_tile<'s>(
             return;
         }
     };
-    let blocks = region.blocks();
+    let blocks = region.blocks_of(band.block_rows);
     let work = Arc::new(TileWork {
         band,
         tile,

@@ -486,9 +486,17 @@ impl<'a> PreparedRegion<'a> {
         Ok(region(inputs, variances, guides, repaired))
     }
 
-    /// The kernel's blocks (none for an empty output rectangle).
+    /// The kernel's blocks (none for an empty output rectangle), as tall as
+    /// [`nlmeans::block_rows`] chooses for rayon's current pool.
     pub fn blocks(&self) -> Vec<Rect> {
-        if self.out.is_empty() { Vec::new() } else { nlmeans::blocks(self.out) }
+        self.blocks_of(nlmeans::block_rows(rayon::current_num_threads()))
+    }
+
+    /// The kernel's blocks, at most `rows` tall, for a caller that runs them
+    /// on a pool of its own ([`nlmeans::block_rows`] of its threads). Any
+    /// height gives the same bits.
+    pub fn blocks_of(&self, rows: usize) -> Vec<Rect> {
+        if self.out.is_empty() { Vec::new() } else { nlmeans::blocks(self.out, rows) }
     }
 
     /// Filter one of [`blocks`](Self::blocks): per job (the beauty, or each

@@ -36,9 +36,22 @@ use crate::image::{HalfPlane, Plane};
 /// cut a 360-row tile (1080p) into three blocks of 120: on the AMD Zen 5
 /// machine of session 16, the full filter at 1080p on two threads ran 0.93x
 /// the time of 192-row blocks (two of 180), with one thread and at 4K the
-/// same time (docs/performance.md, session 16).
+/// same time (docs/performance.md, session 16). [`block_rows`] chooses
+/// [`BLOCK_H_TALL`] instead for one thread.
 const BLOCK_W: usize = 512;
 const BLOCK_H: usize = 128;
+/// The block height [`block_rows`] chooses for one thread: one block per
+/// 1080p tile, whose fewer border rows took 0.954-0.984x the time of
+/// [`BLOCK_H`] on one thread on the Zen 4 of session 38; on two threads it
+/// gained nothing measurable there, at 1080p or 4K (docs/performance.md).
+const BLOCK_H_TALL: usize = 384;
+
+/// The kernel's block height on `threads` threads: 384 rows for one
+/// thread, which no coarser grid can leave idle, else 128. An internal
+/// schedule: the result is the same bits at any height.
+pub fn block_rows(threads: usize) -> usize {
+    if threads <= 1 { BLOCK_H_TALL } else { BLOCK_H }
+}
 
 /// Parameters of one NL-means pass.
 #[derive(Clone, Copy, Debug)]
@@ -99,16 +112,18 @@ pub fn nlmeans(
     out: Rect,
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
-    let results: Vec<_> = blocks(out).par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
+    let rows = block_rows(rayon::current_num_threads());
+    let results: Vec<_> = blocks(out, rows).par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
     assemble(jobs, out, results)
 }
 
-/// The blocks `out` is cut into: the kernel's unit of work, filtered
-/// independently by [`filter_block`] in any order and on any thread.
-/// Blocks of (nearly) equal size: no sliver block whose borders cost more
-/// than its rows (the grid does not change a bit of the result).
-pub fn blocks(out: Rect) -> Vec<Rect> {
-    out.tiles(even(out.width(), BLOCK_W), even(out.height(), BLOCK_H))
+/// The blocks `out` is cut into, at most `rows` tall (see [`block_rows`]):
+/// the kernel's unit of work, filtered independently by [`filter_block`]
+/// in any order and on any thread. Blocks of (nearly) equal size: no sliver
+/// block whose borders cost more than its rows (the grid does not change a
+/// bit of the result).
+pub fn blocks(out: Rect, rows: usize) -> Vec<Rect> {
+    out.tiles(even(out.width(), BLOCK_W), even(out.height(), rows.max(1)))
 }
 
 /// The blocks' results ([`filter_block`], any order) pasted into planes over `out`.
@@ -144,10 +159,10 @@ impl ScratchShape {
     /// Bytes of working memory one block of the kernel holds while it runs
     /// (one block per worker thread at a time), for a region of
     /// `width x height`: the numerators and denominators, every job's lanes'
-    /// rings and rows, the guides' rows and the shared row buffers.
-    /// Independent of the frame size.
+    /// rings and rows, the guides' rows and the shared row buffers; blocks
+    /// as tall as [`block_rows`] may choose. Independent of the frame size.
     pub fn bytes(&self, width: usize, height: usize) -> u64 {
-        let (bw, bh) = (width.clamp(1, BLOCK_W) as u64, height.clamp(1, BLOCK_H) as u64);
+        let (bw, bh) = (width.clamp(1, BLOCK_W) as u64, height.clamp(1, BLOCK_H_TALL) as u64);
         let (r, f) = (self.search_radius as u64, self.patch_radius as u64);
         let mid_w = bw + 2 * f;
         let lanes = 2 * GROUP_MAX as u64;
@@ -1857,6 +1872,23 @@ fn all_rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Tall blocks for one thread only; blocks cover a region once, none
+    /// taller than asked.
+    #[test]
+    fn tall_blocks_for_one_thread() {
+        assert_eq!(block_rows(1), BLOCK_H_TALL);
+        assert_eq!(block_rows(0), BLOCK_H_TALL);
+        assert_eq!(block_rows(2), BLOCK_H);
+        let frame = Rect::from_origin_size(-5, 3, 1920, 1080);
+        assert_eq!(blocks(frame, BLOCK_H_TALL).len(), 4 * 3);
+        assert_eq!(blocks(frame, BLOCK_H).len(), 4 * 9);
+        for rows in [1, 7, BLOCK_H, BLOCK_H_TALL, 5000] {
+            let b = blocks(frame, rows);
+            assert_eq!(b.iter().map(|r| r.area()).sum::<usize>(), frame.area());
+            assert!(b.iter().all(|r| r.height() <= rows && r.width() <= BLOCK_W && frame.contains_rect(r)));
+        }
+    }
 
     /// The AVX-512 fused push of window sums (3 to 9 taps) gives every box the
     /// rows (and so the window sums) of the portable path, sums stored then

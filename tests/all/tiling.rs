@@ -1,6 +1,8 @@
 //! Region (tile) evaluation equals whole-frame filtering bit for bit, and the
 //! derived halo is exactly what the pipeline reads.
 
+use std::borrow::Cow;
+
 use nldenoise::filter::{self, FrameInputs, InputShape, Params, Pipeline};
 use nldenoise::geom::Rect;
 use nldenoise::image::Plane;
@@ -76,6 +78,26 @@ fn thread_count_does_not_change_bits() {
     let one = run(1);
     for n in [2, 3, 4] {
         assert!(run(n) == one, "{n} threads differ from 1");
+    }
+}
+
+#[test]
+fn block_height_does_not_change_bits() {
+    // Tall enough for several blocks of every height tried, for every kind
+    // of input (light layers, features with and without variance).
+    let frame = Rect::from_origin_size(-3, 5, 90, 140);
+    let params = small_params(3, 2);
+    for kinds in ALL_KINDS {
+        let inputs = frame_inputs(frame, 9, kinds);
+        let region = filter::PreparedRegion::new(Cow::Borrowed(&inputs), frame, frame, &params).unwrap();
+        let run = |rows: usize| {
+            let blocks = region.blocks_of(rows);
+            bits(&region.finish(blocks.iter().map(|b| region.filter_block(*b)).collect()))
+        };
+        let want = bits(&filter::denoise_region(&inputs, frame, frame, &params).unwrap());
+        for rows in [1, 5, 33, 128, 384] {
+            assert!(run(rows) == want, "blocks of {rows} rows differ ({kinds:?})");
+        }
     }
 }
 
