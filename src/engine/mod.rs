@@ -472,8 +472,6 @@ struct BandWork {
     band: Rect,
     inputs: Arc<FrameInputs>,
     tiles: Vec<Rect>,
-    /// The height of its tiles' kernel blocks.
-    block_rows: usize,
     /// The denoised channels over the band, each tile pasted in as it finishes.
     out_planes: Mutex<Vec<Plane>>,
     repaired: AtomicUsize,
@@ -588,14 +586,12 @@ fn prepare_band(
     });
     drop(planes);
     let tiles = band.tiles(ctx.plan.tile_width, ctx.plan.band_rows);
-    let block_rows = nlmeans::block_rows(ctx.threads);
     counters.tiles += tiles.len();
     counters.filtered_px += tiles.iter().map(|t| t.expand(ctx.halo).intersect(&ctx.frame).area()).sum::<usize>();
     let work = BandWork {
         band,
         inputs: Arc::new(inputs),
         tiles,
-        block_rows,
         out_planes: Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect()),
         repaired: AtomicUsize::new(0),
     };
@@ -641,7 +637,7 @@ fn start_tile<'s>(
             return;
         }
     };
-    let blocks = region.blocks_of(band.block_rows);
+    let blocks = region.blocks_of(nlmeans::block_rows(ctx.threads));
     let work = Arc::new(TileWork {
         band,
         tile,
