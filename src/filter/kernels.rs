@@ -569,7 +569,8 @@ pub unsafe fn taps_sum_avx512<const F: usize>(src: &[f32], out: &mut [f32]) {
     let mut taps = Taps::<F>::new(src);
     for c in 0..full {
         let i = c * CHUNK;
-        let o = taps.next(i);
+        // The row's interior needs no masked load (see `taps_push_avx512`).
+        let o = if i + 3 * CHUNK <= src.len() { taps.next_whole(i) } else { taps.next(i) };
         // SAFETY: `i + 16 <= n`.
         unsafe { _mm512_storeu_ps(out.as_mut_ptr().add(i), o) };
     }
@@ -607,13 +608,11 @@ pub unsafe fn taps_push_avx512<const F: usize, const CLAMP: bool, const CASE: u8
     let n = ring.len();
     assert!(run.len() == n && src.len() == n + 2 * F, "a window of 2F + 1 taps per pushed sample");
     let (lo, hi) = (_mm512_set1_ps(-limit), _mm512_set1_ps(limit));
-    let mut taps = Taps::<F>::new(src);
-    for i in (0..n).step_by(CHUNK) {
-        let x = taps.next(i);
+    // Columns `i..i + 16` (those of `k`) of the sums `x`, pushed.
+    let mut push = |i: usize, x: __m512, k: __mmask16| {
         // `max` returns its second operand when the first is NaN.
         let x = if CLAMP { _mm512_min_ps(_mm512_max_ps(x, lo), hi) } else { x };
         let v = _mm512_cvt_roundps_epi32::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(x);
-        let k: __mmask16 = if n - i >= CHUNK { 0xFFFF } else { (1u16 << (n - i)) - 1 };
         // SAFETY: `i < n`, and the mask selects only the columns below `n`.
         unsafe {
             let (rp, sp) = (ring.as_mut_ptr().add(i), run.as_mut_ptr().add(i));
@@ -625,6 +624,23 @@ pub unsafe fn taps_push_avx512<const F: usize, const CLAMP: bool, const CASE: u8
             masked::store_epi32(rp, k, v);
             masked::store_epi32(sp, k, s);
         }
+    };
+    let mut taps = Taps::<F>::new(src);
+    // The row's interior, where every load of `Taps::next` (up to sample
+    // `i + 48` of `src`) and every store (up to column `i + 16 <= n`, as
+    // `2F < 32`) is whole: no mask to form or test per chunk.
+    let mut i = 0;
+    while i + 3 * CHUNK <= src.len() {
+        let x = taps.next_whole(i);
+        push(i, x, 0xFFFF);
+        i += CHUNK;
+    }
+    // Its end, masked.
+    while i < n {
+        let x = taps.next(i);
+        let k: __mmask16 = if n - i >= CHUNK { 0xFFFF } else { (1u16 << (n - i)) - 1 };
+        push(i, x, k);
+        i += CHUNK;
     }
 }
 
@@ -712,9 +728,26 @@ impl<'a, const F: usize> Taps<'a, F> {
     /// The sums of outputs `i..i + 16`, `i` the chunk after the previous call's (0 first).
     #[inline(always)]
     fn next(&mut self, i: usize) -> std::arch::x86_64::__m512 {
+        let x2 = Self::load(self.src, i + 2 * CHUNK);
+        self.next_with(x2)
+    }
+
+    /// [`Taps::next`] where samples `i + 32..i + 48` lie inside `src`
+    /// (checked): one plain load, no mask.
+    #[inline(always)]
+    fn next_whole(&mut self, i: usize) -> std::arch::x86_64::__m512 {
+        use std::arch::x86_64::*;
+        assert!(i + 3 * CHUNK <= self.src.len(), "a whole chunk");
+        // SAFETY: the samples lie inside `src` (above; avx512f: see `new`).
+        let x2 = unsafe { _mm512_loadu_ps(self.src.as_ptr().add(i + 2 * CHUNK)) };
+        self.next_with(x2)
+    }
+
+    /// The sums of the next chunk, given the samples 32 further (`x2`).
+    #[inline(always)]
+    fn next_with(&mut self, x2: std::arch::x86_64::__m512) -> std::arch::x86_64::__m512 {
         use std::arch::x86_64::*;
         let (x0, x1, p0) = (self.x0, self.x1, self.p0);
-        let x2 = Self::load(self.src, i + 2 * CHUNK);
         // SAFETY: avx512f, see `new`.
         unsafe {
             let p1 = _mm512_add_ps(x1, valign::<1>(x1, x2));
