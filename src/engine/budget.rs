@@ -120,7 +120,27 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding + kernel
 }
 
-/// The largest tiles (at most `tile_size`) that fit in `limit_bytes`.
+/// How many times `tile_size` a tile may be wide where [`wide_tiles`] allows.
+pub const WIDE_TILES: usize = 2;
+
+/// Whether a frame `b.width` wide gets tiles [`WIDE_TILES`] times
+/// `tile_size` wide: where each band still has at least two of them per
+/// thread (one thread from 1080p up, two threads from 4K up), so that the
+/// band's last tiles leave no thread idle for long. The kernel's blocks
+/// follow the tile's width (up to 1024 columns) and set up half as many
+/// rows per sample: on the Zen 4 of session 39 (docs/performance.md),
+/// 0.94x the full filter's time on one thread and about 0.97-0.98x at 4K on
+/// two; at 1080p on two threads (one wide tile per thread and band) no
+/// gain was resolved, so those tiles keep their width. The tiles never
+/// change a bit of the output.
+pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
+    tile_size > 0 && b.width.div_ceil(WIDE_TILES * tile_size) >= 2 * b.threads.max(1)
+}
+
+/// The largest tiles (at most `tile_size` tall, and at most `tile_size`
+/// wide, or [`WIDE_TILES`] times that where [`wide_tiles`] allows and the
+/// wider tiles fit the limit with full bands, two in flight) that fit in
+/// `limit_bytes`.
 ///
 /// Most of the memory is proportional to full-width rows, so the band height
 /// shrinks first; the tile width (whose cost is halo recomputation) shrinks
@@ -129,11 +149,25 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
 /// rather than 512, 512 and a 56-row sliver whose tiles cost more per pixel
 /// (the kernel recomputes a border around each block) and leave a thread idle.
 pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandPlan, Error> {
+    let band = tile_size.max(1).min(b.height.max(1));
+    if wide_tiles(b, tile_size) {
+        let wide = (WIDE_TILES * tile_size).min(b.width.max(1));
+        // Only at full band height with two bands in flight: under a tight
+        // limit, taller bands (less halo) and a second band in flight (no
+        // idle thread at a band's end) are worth more than wider tiles.
+        if estimate(b, band, wide, 0, MAX_BANDS_IN_FLIGHT) <= limit_bytes {
+            return plan_from(b, band, wide, limit_bytes);
+        }
+    }
+    plan_from(b, band, tile_size.max(1).min(b.width.max(1)), limit_bytes)
+}
+
+/// [`plan`] from bands `band` rows tall and tiles `tile_w` wide, shrunk
+/// until the estimate fits.
+fn plan_from(b: &BudgetInput, mut band: usize, mut tile_w: usize, limit_bytes: u64) -> Result<BandPlan, Error> {
     // Rendezvous hand-offs: stages overlap, but no band waits in a queue, so
     // the peak stays close to the steady state whatever the timing.
     let depth = 0;
-    let mut band = tile_size.max(1).min(b.height.max(1));
-    let mut tile_w = tile_size.max(1).min(b.width.max(1));
     loop {
         // A second band in flight goes before the band height (shorter bands
         // recompute more halo rows).
@@ -284,8 +318,9 @@ mod tests {
     #[test]
     fn plan_fits_the_limit_and_shrinks_tiles() {
         let b = input(16384, 16384);
+        // Wide tiles where they fit at full band height (`wide_tiles`).
         let big = plan(&b, 256, 8 << 30).unwrap();
-        assert_eq!((big.band_rows, big.tile_width), (256, 256));
+        assert_eq!((big.band_rows, big.tile_width), (256, 2 * 256));
         let small = plan(&b, 256, 512 << 20).unwrap();
         assert!(small.estimate_bytes <= 512 << 20);
         assert!(small.band_rows < 256);
@@ -299,6 +334,29 @@ mod tests {
         assert_eq!(p.estimate_bytes, one);
         let e = plan(&b, 256, 32 << 20).unwrap_err().to_string();
         assert!(e.contains("memory limit"), "{e}");
+    }
+
+    #[test]
+    fn wide_tiles_where_every_thread_gets_two_per_band() {
+        let with = |w: usize, h: usize, threads: usize| BudgetInput { threads, ..input(w, h) };
+        // Two threads: 1080p keeps its 480-wide tiles, 4K gets 960.
+        let p = plan(&with(1920, 1080, 2), 512, 8 << 30).unwrap();
+        assert_eq!((p.band_rows, p.tile_width), (360, 480));
+        let p = plan(&with(3840, 2160, 2), 512, 8 << 30).unwrap();
+        assert_eq!((p.band_rows, p.tile_width), (432, 960));
+        // One thread: wide from two wide tiles per band up.
+        let p = plan(&with(1920, 1080, 1), 512, 8 << 30).unwrap();
+        assert_eq!((p.band_rows, p.tile_width), (360, 960));
+        let p = plan(&with(1024, 1080, 1), 512, 8 << 30).unwrap();
+        assert_eq!(p.tile_width, 512, "one wide tile per band is not two");
+        // A limit the wide tiles' full bands do not fit: the usual width,
+        // bands shrunk from there.
+        let b = with(3840, 2160, 2);
+        let limit = estimate(&b, 512, 1024, 0, MAX_BANDS_IN_FLIGHT) - 1;
+        assert!(estimate(&b, 512, 512, 0, MAX_BANDS_IN_FLIGHT) <= limit, "the narrow tiles fit this limit");
+        let p = plan(&b, 512, limit).unwrap();
+        assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (432, 480, MAX_BANDS_IN_FLIGHT));
+        assert!(p.estimate_bytes <= limit);
     }
 
     /// The writer's scratch is counted per encoder, and a band never keeps

@@ -37,8 +37,12 @@ use crate::image::{HalfPlane, Plane};
 /// machine of session 16, the full filter at 1080p on two threads ran 0.93x
 /// the time of 192-row blocks (two of 180), with one thread and at 4K the
 /// same time (docs/performance.md, session 16). [`block_rows`] chooses
-/// [`BLOCK_H_TALL`] instead for one thread.
-const BLOCK_W: usize = 512;
+/// [`BLOCK_H_TALL`] instead for one thread. Blocks are as wide as their
+/// tile up to 1024 columns: where the engine plans wide tiles
+/// (`engine::budget::plan`), blocks 960 wide instead of two of 480 set up
+/// half as many rows per sample (0.94x the full filter's time on one
+/// thread, Zen 4, session 39).
+const BLOCK_W: usize = 1024;
 const BLOCK_H: usize = 128;
 /// The block height [`block_rows`] chooses for one thread: one block per
 /// 1080p tile, whose fewer border rows took 0.954-0.984x the time of
@@ -1881,8 +1885,9 @@ mod tests {
         assert_eq!(block_rows(0), BLOCK_H_TALL);
         assert_eq!(block_rows(2), BLOCK_H);
         let frame = Rect::from_origin_size(-5, 3, 1920, 1080);
-        assert_eq!(blocks(frame, BLOCK_H_TALL).len(), 4 * 3);
-        assert_eq!(blocks(frame, BLOCK_H).len(), 4 * 9);
+        // Two columns of blocks 960 wide (`BLOCK_W`), three or nine rows.
+        assert_eq!(blocks(frame, BLOCK_H_TALL).len(), 2 * 3);
+        assert_eq!(blocks(frame, BLOCK_H).len(), 2 * 9);
         for rows in [1, 7, BLOCK_H, BLOCK_H_TALL, 5000] {
             let b = blocks(frame, rows);
             assert_eq!(b.iter().map(|r| r.area()).sum::<usize>(), frame.area());
