@@ -129,7 +129,7 @@ pub const WIDE_TILES: usize = 2;
 /// band's last tiles leave no thread idle for long. The kernel's blocks
 /// follow the tile's width (up to 1024 columns) and set up half as many
 /// rows per sample: on the Zen 4 of session 39 (docs/performance.md),
-/// 0.94x the full filter's time on one thread and about 0.97-0.98x at 4K on
+/// 0.93-0.94x the full filter's time on one thread and about 0.97-0.98x at 4K on
 /// two; at 1080p on two threads (one wide tile per thread and band) no
 /// gain was resolved, so those tiles keep their width. The tiles never
 /// change a bit of the output.

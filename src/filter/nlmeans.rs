@@ -38,10 +38,11 @@ use crate::image::{HalfPlane, Plane};
 /// the time of 192-row blocks (two of 180), with one thread and at 4K the
 /// same time (docs/performance.md, session 16). [`block_rows`] chooses
 /// [`BLOCK_H_TALL`] instead for one thread. Blocks are as wide as their
-/// tile up to 1024 columns: where the engine plans wide tiles
-/// (`engine::budget::plan`), blocks 960 wide instead of two of 480 set up
-/// half as many rows per sample (0.94x the full filter's time on one
-/// thread, Zen 4, session 39).
+/// region (a tile, or the frame with `--tile-size 0`) up to 1024 columns:
+/// where the engine plans wide tiles (`engine::budget::wide_tiles`),
+/// blocks 960 wide instead of two of 480 set up half as many rows per
+/// sample (0.93-0.94x the full filter's time on one thread, Zen 4,
+/// session 39).
 const BLOCK_W: usize = 1024;
 const BLOCK_H: usize = 128;
 /// The block height [`block_rows`] chooses for one thread: one block per
