@@ -56,6 +56,16 @@ fn tiles_equal_whole_frame_for_every_input_kind() {
 }
 
 #[test]
+fn tiles_equal_whole_frame_with_blocks_wider_than_512() {
+    // Whole-frame blocks of 515 columns (the kernel's blocks reach 1024
+    // columns since session 39), against tiles of narrower blocks.
+    let frame = Rect::from_origin_size(-2, 1, 1030, 12);
+    for kinds in ALL_KINDS {
+        assert_tiled_equals_whole(frame, 11, kinds, &small_params(3, 2), &[(480, 12), (1030, 5)]);
+    }
+}
+
+#[test]
 fn tiles_equal_whole_frame_on_thin_frames() {
     for frame in
         [Rect::from_origin_size(0, 0, 1, 40), Rect::from_origin_size(0, 0, 40, 1), Rect::from_origin_size(3, 3, 2, 2)]
