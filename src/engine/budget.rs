@@ -126,15 +126,24 @@ pub const WIDE_TILES: usize = 2;
 /// Whether a frame `b.width` wide gets tiles [`WIDE_TILES`] times
 /// `tile_size` wide: where each band still has at least two of them per
 /// thread (one thread from 1080p up, two threads from 4K up), so that the
-/// band's last tiles leave no thread idle for long. The kernel's blocks
-/// follow the tile's width (up to 1024 columns) and set up half as many
-/// rows per sample: on the Zen 4 of session 39 (docs/performance.md),
-/// 0.93-0.94x the full filter's time on one thread and about 0.97-0.98x at 4K on
-/// two; at 1080p on two threads (one wide tile per thread and band) no
-/// gain was resolved, so those tiles keep their width. The tiles never
-/// change a bit of the output.
+/// band's last tiles leave no thread idle for long, or, for a colour-only
+/// kernel (one job, no guides), at least one per thread (two threads from
+/// 1080p up). The kernel's blocks follow the tile's width (up to 1024
+/// columns) and set up half as many rows per sample. On the Zen 4 of
+/// sessions 39 and 40 (docs/performance.md): 0.93-0.94x the full filter's
+/// time on one thread and about 0.97-0.98x at 4K on two; at 1080p on two
+/// threads (one wide tile per thread and band), colour-only 0.986x by the
+/// median of 46 alternating rounds' ratios (faster in 29; the four runs'
+/// minima 0.93-0.98x), a small gain, but none resolved for the full
+/// filter, whose tiles there keep their width. The tiles never change a
+/// bit of the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
-    tile_size > 0 && b.width.div_ceil(WIDE_TILES * tile_size) >= 2 * b.threads.max(1)
+    if tile_size == 0 {
+        return false;
+    }
+    let (per_band, threads) = (b.width.div_ceil(WIDE_TILES * tile_size), b.threads.max(1));
+    let colour_only = b.kernel.jobs <= 1 && b.kernel.guides == 0;
+    per_band >= 2 * threads || (colour_only && per_band >= threads)
 }
 
 /// The largest tiles (at most `tile_size` tall, and at most `tile_size`
@@ -337,7 +346,7 @@ mod tests {
     }
 
     #[test]
-    fn wide_tiles_where_every_thread_gets_two_per_band() {
+    fn wide_tiles_where_every_thread_gets_two_per_band_or_one_colour_only() {
         let with = |w: usize, h: usize, threads: usize| BudgetInput { threads, ..input(w, h) };
         // Two threads: 1080p keeps its 480-wide tiles, 4K gets 960.
         let p = plan(&with(1920, 1080, 2), 512, 8 << 30).unwrap();
@@ -349,6 +358,21 @@ mod tests {
         assert_eq!((p.band_rows, p.tile_width), (360, 960));
         let p = plan(&with(1024, 1080, 1), 512, 8 << 30).unwrap();
         assert_eq!(p.tile_width, 512, "one wide tile per band is not two");
+        // Colour-only (one job, no guides): one wide tile per thread is enough.
+        let colour = |w: usize, h: usize, threads: usize| {
+            let kernel = ScratchShape { jobs: 1, accumulators: 4, guides: 0, ..input(w, h).kernel };
+            BudgetInput { threads, kernel, ..input(w, h) }
+        };
+        let p = plan(&colour(1920, 1080, 2), 512, 8 << 30).unwrap();
+        assert_eq!((p.band_rows, p.tile_width), (360, 960));
+        let p = plan(&colour(1920, 1080, 3), 512, 8 << 30).unwrap();
+        assert_eq!(p.tile_width, 480, "two wide tiles per band for three threads");
+        // With guides, or with two jobs, it takes two per thread.
+        let guided = BudgetInput { kernel: ScratchShape { jobs: 1, ..input(1920, 1080).kernel }, ..input(1920, 1080) };
+        assert_eq!(plan(&guided, 512, 8 << 30).unwrap().tile_width, 480);
+        let layers =
+            BudgetInput { kernel: ScratchShape { guides: 0, ..input(1920, 1080).kernel }, ..input(1920, 1080) };
+        assert_eq!(plan(&layers, 512, 8 << 30).unwrap().tile_width, 480);
         // A limit the wide tiles' full bands do not fit: the usual width,
         // bands shrunk from there.
         let b = with(3840, 2160, 2);
