@@ -49,8 +49,7 @@ pub struct DenoiseArgs {
     pub half: bool,
     /// Largest tile size in pixels for the streaming engine (tiles are evened out over the
     /// frame: 1920x1080 gets 480x360); tiles may be twice as wide where every thread still
-    /// gets two per band, or one for the colour-only filter (4K on two threads: 960x432);
-    /// 0 filters the whole frame in memory.
+    /// gets one per band (1080p on two threads: 960x360); 0 filters the whole frame in memory.
     #[arg(long, default_value_t = 512)]
     pub tile_size: usize,
     /// Memory limit (e.g. 512M, 4G): the streaming engine's budget, or the largest frame read whole

@@ -75,6 +75,9 @@ pub struct BandPlan {
     pub band_rows: usize,
     /// Tile width.
     pub tile_width: usize,
+    /// The kernel's block height in a tile (`nlmeans::block_rows`: tall
+    /// for one thread or [`wide_tiles`]).
+    pub kernel_rows: usize,
     /// Capacity of each bounded queue between stages (0: rendezvous hand-off).
     pub queue_depth: usize,
     /// Bands whose tiles the filter stage queues at once (1 or
@@ -88,8 +91,14 @@ pub struct BandPlan {
 /// The most bands the filter stage queues at once.
 pub const MAX_BANDS_IN_FLIGHT: usize = 2;
 
-/// Estimated peak bytes for a schedule.
-pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usize, in_flight: usize) -> u64 {
+/// Estimated peak bytes for a schedule whose kernel blocks are at most
+/// `kernel_rows` tall.
+pub fn estimate(
+    b: &BudgetInput,
+    (band_rows, tile_width, kernel_rows): (usize, usize, usize),
+    depth: usize,
+    in_flight: usize,
+) -> u64 {
     let w = b.width as u64;
     let h = b.halo as u64;
     let band = band_rows as u64;
@@ -114,8 +123,8 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
     // (a chunk's compressed bytes are freed once inflated).
     let decoding = b.threads as u64 * 2 * w * b.block_rows as u64 * b.bytes_all as u64;
     // The kernel's blocks: one per thread at a time, as tall as the engine
-    // cuts them for this many threads.
-    let block_rows = band_rows.min(crate::filter::nlmeans::block_rows(b.threads));
+    // cuts them.
+    let block_rows = band_rows.min(kernel_rows);
     let kernel = b.threads as u64 * b.kernel.bytes(tile as usize, block_rows);
     BASE_BYTES + cache + inputs + planes + tiles + outputs + writer + decoding + kernel
 }
@@ -124,26 +133,31 @@ pub fn estimate(b: &BudgetInput, band_rows: usize, tile_width: usize, depth: usi
 pub const WIDE_TILES: usize = 2;
 
 /// Whether a frame `b.width` wide gets tiles [`WIDE_TILES`] times
-/// `tile_size` wide: where each band still has at least two of them per
-/// thread (one thread from 1080p up, two threads from 4K up), so that the
-/// band's last tiles leave no thread idle for long, or, for a colour-only
-/// kernel (one job, no guides), at least one per thread (two threads from
-/// 1080p up). The kernel's blocks follow the tile's width (up to 1024
-/// columns) and set up half as many rows per sample. On the Zen 4 of
-/// sessions 39 and 40 (docs/performance.md): 0.93-0.94x the full filter's
-/// time on one thread and about 0.97-0.98x at 4K on two; at 1080p on two
-/// threads (one wide tile per thread and band), colour-only 0.986x by the
-/// median of 46 alternating rounds' ratios (faster in 29; the four runs'
-/// minima 0.93-0.98x), a small gain, but none resolved for the full
-/// filter, whose tiles there keep their width. The tiles never change a
-/// bit of the output.
+/// `tile_size` wide: where each band still has at least one of them per
+/// thread (one thread from 1024 columns up, two threads from 1080p up).
+/// The kernel's blocks follow the tile's width (up to 1024 columns) and set
+/// up half as many rows per sample, and in wide tiles they are tall
+/// (`nlmeans::block_rows`): one block per tile and thread at 1080p on two
+/// threads, fewer border rows recomputed. On the Zen 4 of sessions 39-41
+/// (docs/performance.md): 0.93-0.94x the full filter's time on one thread;
+/// on two threads at 1080p (one wide tile of one block per thread and
+/// band, against tiles of 480 with 128-row blocks), from memory 0.956x by
+/// the median of 74 alternating rounds' ratios (faster in 57), the light
+/// layers alone 0.93x, the colour-only and feature-guided kernels (one
+/// job) level, and the file run level (under [`bound_allocator`]'s
+/// policy); at 4K on two threads the wide tiles about 0.97-0.98x (session
+/// 39) and tall blocks in them 0.96x by the median of 8 rounds. Neither
+/// the tiles nor the blocks change a bit of the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
     if tile_size == 0 {
         return false;
     }
-    let (per_band, threads) = (b.width.div_ceil(WIDE_TILES * tile_size), b.threads.max(1));
-    let colour_only = b.kernel.jobs <= 1 && b.kernel.guides == 0;
-    per_band >= 2 * threads || (colour_only && per_band >= threads)
+    b.width.div_ceil(WIDE_TILES * tile_size) >= b.threads.max(1)
+}
+
+/// The kernel's block height for tiles that are (or are not) [`wide_tiles`].
+fn kernel_rows(b: &BudgetInput, wide: bool) -> usize {
+    crate::filter::nlmeans::block_rows(b.threads, wide)
 }
 
 /// The largest tiles (at most `tile_size` tall, and at most `tile_size`
@@ -164,36 +178,44 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
         // Only at full band height with two bands in flight: under a tight
         // limit, taller bands (less halo) and a second band in flight (no
         // idle thread at a band's end) are worth more than wider tiles.
-        if estimate(b, band, wide, 0, MAX_BANDS_IN_FLIGHT) <= limit_bytes {
-            return plan_from(b, band, wide, limit_bytes);
+        if estimate(b, (band, wide, kernel_rows(b, true)), 0, MAX_BANDS_IN_FLIGHT) <= limit_bytes {
+            return plan_from(b, band, (wide, kernel_rows(b, true)), limit_bytes);
         }
     }
-    plan_from(b, band, tile_size.max(1).min(b.width.max(1)), limit_bytes)
+    plan_from(b, band, (tile_size.max(1).min(b.width.max(1)), kernel_rows(b, false)), limit_bytes)
 }
 
-/// [`plan`] from bands `band` rows tall and tiles `tile_w` wide, shrunk
-/// until the estimate fits.
-fn plan_from(b: &BudgetInput, mut band: usize, mut tile_w: usize, limit_bytes: u64) -> Result<BandPlan, Error> {
+/// [`plan`] from bands `band` rows tall and tiles `tile_w` wide (blocks at
+/// most `kernel_rows` tall), shrunk until the estimate fits.
+fn plan_from(
+    b: &BudgetInput,
+    mut band: usize,
+    (mut tile_w, kernel_rows): (usize, usize),
+    limit_bytes: u64,
+) -> Result<BandPlan, Error> {
     // Rendezvous hand-offs: stages overlap, but no band waits in a queue, so
     // the peak stays close to the steady state whatever the timing.
     let depth = 0;
     loop {
         // A second band in flight goes before the band height (shorter bands
         // recompute more halo rows).
-        let fits = [MAX_BANDS_IN_FLIGHT, 1].into_iter().find(|&n| estimate(b, band, tile_w, depth, n) <= limit_bytes);
+        let fits = [MAX_BANDS_IN_FLIGHT, 1]
+            .into_iter()
+            .find(|&n| estimate(b, (band, tile_w, kernel_rows), depth, n) <= limit_bytes);
         if let Some(in_flight) = fits {
             // Evening out never grows a size, so the estimate still fits.
             let (band, tile_w) = (even(b.height, band), even(b.width, tile_w));
-            let estimate_bytes = estimate(b, band, tile_w, depth, in_flight);
+            let estimate_bytes = estimate(b, (band, tile_w, kernel_rows), depth, in_flight);
             return Ok(BandPlan {
                 band_rows: band,
                 tile_width: tile_w,
+                kernel_rows,
                 queue_depth: depth,
                 bands_in_flight: in_flight,
                 estimate_bytes,
             });
         }
-        let est = estimate(b, band, tile_w, depth, 1);
+        let est = estimate(b, (band, tile_w, kernel_rows), depth, 1);
         if band > 1 {
             band = band.div_ceil(2);
         } else if tile_w > 1 {
@@ -210,12 +232,18 @@ pub use crate::geom::even;
 /// fault per fresh buffer (Linux glibc). Two settings, both measured
 /// (docs/performance.md, "Bounded memory"):
 ///
-/// - `M_MMAP_THRESHOLD = 1 MiB`, which also disables glibc's dynamic
+/// - `M_MMAP_THRESHOLD = 2 MiB`, which also disables glibc's dynamic
 ///   threshold: larger buffers (a band's planes) are mapped on allocation
 ///   and unmapped on free. Without it, after the first large free glibc
 ///   served multi-MiB buffers from arenas that kept them, and the resident
 ///   set exceeded the budget by half (436 MiB instead of 274 MiB on a
-///   16384-wide frame).
+///   16384-wide frame). Until session 41 the threshold was 1 MiB; the
+///   wide tiles' planes (1.6 MiB with their halo at 1080p, 1.9 MiB at 4K)
+///   and tall blocks' accumulators (up to 1.5 MiB) then were mapped,
+///   faulted in and unmapped (a TLB shootdown each) per tile and block:
+///   the 1080p file run on two threads with wide tiles took 1.07x the time
+///   of narrow ones, and on one thread 1.03x (docs/performance.md,
+///   session 41).
 /// - `M_ARENA_MAX = 1`: every thread allocates from one arena, so the
 ///   buffers below the threshold (a tile's planes, a block's accumulators)
 ///   that one thread frees serve the next allocations, whichever thread
@@ -236,7 +264,7 @@ pub fn bound_allocator() {
     // thread-safe and has no memory-safety preconditions.
     unsafe {
         libc::mallopt(libc::M_ARENA_MAX, 1);
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 2 << 20);
     }
 }
 
@@ -313,7 +341,7 @@ mod tests {
         assert_eq!(even(1024, 512), 512);
         assert_eq!(even(100, 512), 100);
         assert_eq!(even(513, 512), 257);
-        let p = plan(&input(1920, 1080), 512, 8 << 30).unwrap();
+        let p = plan(&BudgetInput { threads: 4, ..input(1920, 1080) }, 512, 8 << 30).unwrap();
         assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (360, 480, MAX_BANDS_IN_FLIGHT));
         // Never larger than asked, and the parts cover the frame in the same count.
         for total in 1..600 {
@@ -336,50 +364,45 @@ mod tests {
         assert_eq!(small.tile_width, 256, "tiles keep their width while bands can shrink");
         // Between one band's and two bands' estimates, the plan keeps its
         // band height and queues one band at a time.
-        let (one, two) = (estimate(&b, 256, 256, 0, 1), estimate(&b, 256, 256, 0, 2));
+        let (one, two) = (estimate(&b, (256, 256, 128), 0, 1), estimate(&b, (256, 256, 128), 0, 2));
         assert!(one < two);
         let p = plan(&b, 256, (one + two) / 2).unwrap();
-        assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (256, 256, 1));
+        assert_eq!((p.band_rows, p.tile_width, p.kernel_rows, p.bands_in_flight), (256, 256, 128, 1));
         assert_eq!(p.estimate_bytes, one);
         let e = plan(&b, 256, 32 << 20).unwrap_err().to_string();
         assert!(e.contains("memory limit"), "{e}");
     }
 
     #[test]
-    fn wide_tiles_where_every_thread_gets_two_per_band_or_one_colour_only() {
+    fn wide_tiles_of_tall_blocks_where_every_thread_gets_one_per_band() {
         let with = |w: usize, h: usize, threads: usize| BudgetInput { threads, ..input(w, h) };
-        // Two threads: 1080p keeps its 480-wide tiles, 4K gets 960.
-        let p = plan(&with(1920, 1080, 2), 512, 8 << 30).unwrap();
-        assert_eq!((p.band_rows, p.tile_width), (360, 480));
-        let p = plan(&with(3840, 2160, 2), 512, 8 << 30).unwrap();
-        assert_eq!((p.band_rows, p.tile_width), (432, 960));
-        // One thread: wide from two wide tiles per band up.
-        let p = plan(&with(1920, 1080, 1), 512, 8 << 30).unwrap();
-        assert_eq!((p.band_rows, p.tile_width), (360, 960));
-        let p = plan(&with(1024, 1080, 1), 512, 8 << 30).unwrap();
-        assert_eq!(p.tile_width, 512, "one wide tile per band is not two");
-        // Colour-only (one job, no guides): one wide tile per thread is enough.
-        let colour = |w: usize, h: usize, threads: usize| {
-            let kernel = ScratchShape { jobs: 1, accumulators: 4, guides: 0, ..input(w, h).kernel };
-            BudgetInput { threads, kernel, ..input(w, h) }
-        };
-        let p = plan(&colour(1920, 1080, 2), 512, 8 << 30).unwrap();
-        assert_eq!((p.band_rows, p.tile_width), (360, 960));
-        let p = plan(&colour(1920, 1080, 3), 512, 8 << 30).unwrap();
-        assert_eq!(p.tile_width, 480, "two wide tiles per band for three threads");
-        // With guides, or with two jobs, it takes two per thread.
-        let guided = BudgetInput { kernel: ScratchShape { jobs: 1, ..input(1920, 1080).kernel }, ..input(1920, 1080) };
-        assert_eq!(plan(&guided, 512, 8 << 30).unwrap().tile_width, 480);
-        let layers =
-            BudgetInput { kernel: ScratchShape { guides: 0, ..input(1920, 1080).kernel }, ..input(1920, 1080) };
-        assert_eq!(plan(&layers, 512, 8 << 30).unwrap().tile_width, 480);
+        let shape = |p: BandPlan| (p.band_rows, p.tile_width, p.kernel_rows);
+        // Two threads: 1080p and 4K get 960-wide tiles of tall blocks.
+        assert_eq!(shape(plan(&with(1920, 1080, 2), 512, 8 << 30).unwrap()), (360, 960, 384));
+        assert_eq!(shape(plan(&with(3840, 2160, 2), 512, 8 << 30).unwrap()), (432, 960, 384));
+        // Three threads at 1080p: two wide tiles per band are too few.
+        assert_eq!(shape(plan(&with(1920, 1080, 3), 512, 8 << 30).unwrap()), (360, 480, 128));
+        assert_eq!(shape(plan(&with(3840, 2160, 3), 512, 8 << 30).unwrap()), (432, 960, 384));
+        // One thread: wide from one wide tile per band up, tall blocks always.
+        assert_eq!(shape(plan(&with(1920, 1080, 1), 512, 8 << 30).unwrap()), (360, 960, 384));
+        assert_eq!(shape(plan(&with(1024, 1080, 1), 512, 8 << 30).unwrap()), (360, 1024, 384));
+        assert_eq!(shape(plan(&with(1024, 1080, 2), 512, 8 << 30).unwrap()), (360, 512, 128));
+        // Whatever the kernel: colour-only, one job with guides, two jobs without.
+        for kernel in [
+            ScratchShape { jobs: 1, accumulators: 4, guides: 0, ..input(1920, 1080).kernel },
+            ScratchShape { jobs: 1, ..input(1920, 1080).kernel },
+            ScratchShape { guides: 0, ..input(1920, 1080).kernel },
+        ] {
+            let b = BudgetInput { kernel, ..input(1920, 1080) };
+            assert_eq!(shape(plan(&b, 512, 8 << 30).unwrap()), (360, 960, 384));
+        }
         // A limit the wide tiles' full bands do not fit: the usual width,
         // bands shrunk from there.
         let b = with(3840, 2160, 2);
-        let limit = estimate(&b, 512, 1024, 0, MAX_BANDS_IN_FLIGHT) - 1;
-        assert!(estimate(&b, 512, 512, 0, MAX_BANDS_IN_FLIGHT) <= limit, "the narrow tiles fit this limit");
+        let limit = estimate(&b, (512, 1024, 384), 0, MAX_BANDS_IN_FLIGHT) - 1;
+        assert!(estimate(&b, (512, 512, 128), 0, MAX_BANDS_IN_FLIGHT) <= limit, "the narrow tiles fit this limit");
         let p = plan(&b, 512, limit).unwrap();
-        assert_eq!((p.band_rows, p.tile_width, p.bands_in_flight), (432, 480, MAX_BANDS_IN_FLIGHT));
+        assert_eq!((shape(p), p.bands_in_flight), ((432, 480, 128), MAX_BANDS_IN_FLIGHT));
         assert!(p.estimate_bytes <= limit);
     }
 
@@ -388,7 +411,7 @@ mod tests {
     #[test]
     fn writer_scratch_is_counted_per_busy_encoder() {
         let with = |threads: usize, band: usize| {
-            estimate(&BudgetInput { writer_threads: threads, ..input(4096, 4096) }, band, 256, 0, 1)
+            estimate(&BudgetInput { writer_threads: threads, ..input(4096, 4096) }, (band, 256, 128), 0, 1)
         };
         let block = 2 * 4096 * 16 * (3 * 4 + 24 * 2 + 14 * 4) as u64;
         assert_eq!(with(2, 64) - with(1, 64), block);

@@ -27,7 +27,7 @@ use tracing::{debug, info, info_span};
 
 use crate::error::Error;
 use crate::exrio::roles::ChannelRoles;
-use crate::filter::nlmeans::{self, ScratchShape};
+use crate::filter::nlmeans::ScratchShape;
 use crate::filter::{FrameInputs, Params, Pipeline, PreparedRegion};
 use crate::geom::Rect;
 use crate::image::{ChannelRows, Plane, Samples};
@@ -277,10 +277,11 @@ pub fn denoise_stream(
     let cp = channel_plan(&names, roles)?;
     let (halo, plan, threads) = plan_with(source, roles, params, opts, &cp)?;
     info!(
-        "plan: bands of {} rows, tiles {}x{}, halo {halo}, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB allowed",
+        "plan: bands of {} rows, tiles {}x{} (kernel blocks up to {} rows), halo {halo}, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB allowed",
         plan.band_rows,
         plan.tile_width,
         plan.band_rows,
+        plan.kernel_rows,
         plan.queue_depth,
         plan.bands_in_flight,
         plan.estimate_bytes as f64 / 1048576.0,
@@ -343,7 +344,6 @@ pub fn denoise_stream(
                 names: names_ref,
                 cp: cp_ref,
                 half: opts.half,
-                threads,
                 kernel_ns: AtomicU64::new(0),
             };
             let mut counters = FilterCounters::default();
@@ -461,8 +461,6 @@ struct BandCtx<'a> {
     names: &'a [String],
     cp: &'a ChannelPlan,
     half: bool,
-    /// The pool's threads.
-    threads: usize,
     /// Nanoseconds the workers spent in kernel blocks, summed.
     kernel_ns: AtomicU64,
 }
@@ -637,7 +635,7 @@ fn start_tile<'s>(
             return;
         }
     };
-    let blocks = region.blocks_of(nlmeans::block_rows(ctx.threads));
+    let blocks = region.blocks_of(ctx.plan.kernel_rows);
     let work = Arc::new(TileWork {
         band,
         tile,

@@ -489,7 +489,7 @@ impl<'a> PreparedRegion<'a> {
     /// The kernel's blocks (none for an empty output rectangle), as tall as
     /// [`nlmeans::block_rows`] chooses for rayon's current pool.
     pub fn blocks(&self) -> Vec<Rect> {
-        self.blocks_of(nlmeans::block_rows(rayon::current_num_threads()))
+        self.blocks_of(nlmeans::block_rows(rayon::current_num_threads(), false))
     }
 
     /// The kernel's blocks, at most `rows` tall, for a caller that runs them

@@ -37,7 +37,7 @@ use crate::image::{HalfPlane, Plane};
 /// machine of session 16, the full filter at 1080p on two threads ran 0.93x
 /// the time of 192-row blocks (two of 180), with one thread and at 4K the
 /// same time (docs/performance.md, session 16). [`block_rows`] chooses
-/// [`BLOCK_H_TALL`] instead for one thread. Blocks are as wide as their
+/// [`BLOCK_H_TALL`] instead for one thread or wide tiles. Blocks are as wide as their
 /// region (a tile, or the frame with `--tile-size 0`) up to 1024 columns:
 /// where the engine plans wide tiles (`engine::budget::wide_tiles`),
 /// blocks 960 wide instead of two of 480 set up half as many rows per
@@ -45,17 +45,24 @@ use crate::image::{HalfPlane, Plane};
 /// session 39).
 const BLOCK_W: usize = 1024;
 const BLOCK_H: usize = 128;
-/// The block height [`block_rows`] chooses for one thread: one block per
+/// The block height [`block_rows`] chooses for one thread, or for tiles
+/// the engine plans wide (`engine::budget::wide_tiles`): one block per
 /// 1080p tile, whose fewer border rows took 0.954-0.984x the time of
-/// [`BLOCK_H`] on one thread on the Zen 4 of session 38; on two threads it
-/// gained nothing measurable there, at 1080p or 4K (docs/performance.md).
+/// [`BLOCK_H`] on one thread on the Zen 4 of session 38. On two threads
+/// with the wide tiles of session 41 (one per thread and band at 1080p,
+/// two at 4K), the full filter from memory took 0.956x the time of
+/// 480-wide tiles of 128-row blocks at 1080p (median of 74 rounds), and
+/// 0.96x that of wide tiles of 128-row blocks at 4K (median of 8 rounds;
+/// docs/performance.md, session 41).
 const BLOCK_H_TALL: usize = 384;
 
 /// The kernel's block height on `threads` threads: 384 rows for one
-/// thread, which no coarser grid can leave idle, else 128. An internal
-/// schedule: the result is the same bits at any height.
-pub fn block_rows(threads: usize) -> usize {
-    if threads <= 1 { BLOCK_H_TALL } else { BLOCK_H }
+/// thread, which no coarser grid can leave idle, or for the engine's
+/// `wide` tiles (one or more per thread and band, so a band still gives
+/// every thread a block), else 128. An internal schedule: the result is
+/// the same bits at any height.
+pub fn block_rows(threads: usize, wide: bool) -> usize {
+    if threads <= 1 || wide { BLOCK_H_TALL } else { BLOCK_H }
 }
 
 /// Parameters of one NL-means pass.
@@ -117,7 +124,7 @@ pub fn nlmeans(
     out: Rect,
     s: &NlmSettings,
 ) -> Vec<Vec<Plane>> {
-    let rows = block_rows(rayon::current_num_threads());
+    let rows = block_rows(rayon::current_num_threads(), false);
     let results: Vec<_> = blocks(out, rows).par_iter().map(|b| filter_block(jobs, features, frame, *b, s)).collect();
     assemble(jobs, out, results)
 }
@@ -1878,13 +1885,14 @@ fn all_rows(planes: &[Plane], y: i64, x0: i64, x1: i64) -> Vec<&[f32]> {
 mod tests {
     use super::*;
 
-    /// Tall blocks for one thread only; blocks cover a region once, none
-    /// taller than asked.
+    /// Tall blocks for one thread or wide tiles only; blocks cover a
+    /// region once, none taller than asked.
     #[test]
-    fn tall_blocks_for_one_thread() {
-        assert_eq!(block_rows(1), BLOCK_H_TALL);
-        assert_eq!(block_rows(0), BLOCK_H_TALL);
-        assert_eq!(block_rows(2), BLOCK_H);
+    fn tall_blocks_for_one_thread_or_wide_tiles() {
+        assert_eq!(block_rows(1, false), BLOCK_H_TALL);
+        assert_eq!(block_rows(0, false), BLOCK_H_TALL);
+        assert_eq!(block_rows(2, false), BLOCK_H);
+        assert_eq!(block_rows(2, true), BLOCK_H_TALL);
         let frame = Rect::from_origin_size(-5, 3, 1920, 1080);
         // Two columns of blocks 960 wide (`BLOCK_W`), three or nine rows.
         assert_eq!(blocks(frame, BLOCK_H_TALL).len(), 2 * 3);
