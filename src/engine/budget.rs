@@ -232,18 +232,21 @@ pub use crate::geom::even;
 /// fault per fresh buffer (Linux glibc). Two settings, both measured
 /// (docs/performance.md, "Bounded memory"):
 ///
-/// - `M_MMAP_THRESHOLD = 2 MiB`, which also disables glibc's dynamic
-///   threshold: larger buffers (a band's planes) are mapped on allocation
-///   and unmapped on free. Without it, after the first large free glibc
-///   served multi-MiB buffers from arenas that kept them, and the resident
-///   set exceeded the budget by half (436 MiB instead of 274 MiB on a
-///   16384-wide frame). Until session 41 the threshold was 1 MiB; the
-///   wide tiles' planes (1.6 MiB with their halo at 1080p, 1.9 MiB at 4K)
-///   and tall blocks' accumulators (up to 1.5 MiB) then were mapped,
-///   faulted in and unmapped (a TLB shootdown each) per tile and block:
-///   the 1080p file run on two threads with wide tiles took 1.07x the time
-///   of narrow ones, and on one thread 1.03x (docs/performance.md,
-///   session 41).
+/// - `M_MMAP_THRESHOLD = 4 MiB`, which also disables glibc's dynamic
+///   threshold: larger buffers (a band's planes from 4K up) are mapped on
+///   allocation and unmapped on free. Without it, after the first large
+///   free glibc served multi-MiB buffers from arenas that kept them, and
+///   the resident set exceeded the budget by half (436 MiB instead of 274
+///   MiB on a 16384-wide frame). Until session 41 the threshold was 1 MiB;
+///   the wide tiles' planes (1.6 MiB with their halo at 1080p, 1.9 MiB at
+///   4K) and tall blocks' accumulators (up to 1.5 MiB) then were mapped,
+///   faulted in and unmapped (a TLB shootdown each) per tile and block: the
+///   1080p file run on two threads with wide tiles took 1.07x the time of
+///   narrow ones, and on one thread (wide tiles since session 39) 1.05x
+///   the time it takes at 4 MiB. At 2 MiB, a 1080p band's planes (3 MiB)
+///   still were, and the filter from memory took 1.03x the time of glibc's
+///   default policy; at 4 MiB the same time (docs/performance.md, session
+///   41).
 /// - `M_ARENA_MAX = 1`: every thread allocates from one arena, so the
 ///   buffers below the threshold (a tile's planes, a block's accumulators)
 ///   that one thread frees serve the next allocations, whichever thread
@@ -264,7 +267,7 @@ pub fn bound_allocator() {
     // thread-safe and has no memory-safety preconditions.
     unsafe {
         libc::mallopt(libc::M_ARENA_MAX, 1);
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 2 << 20);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 4 << 20);
     }
 }
 
