@@ -101,10 +101,11 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
         match engine::plan_stream(&source, &roles, &params, &opts) {
             Ok((_, p, threads)) => writeln!(
                 o,
-                "  streaming: bands of {} rows, tiles {}x{}, {} threads, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB",
+                "  streaming: bands of {} rows, tiles {}x{} (kernel blocks up to {} rows), {} threads, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB",
                 p.band_rows,
                 p.tile_width,
                 p.band_rows,
+                p.kernel_rows,
                 threads,
                 p.queue_depth,
                 p.bands_in_flight,
