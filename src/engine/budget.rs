@@ -134,7 +134,8 @@ pub const WIDE_TILES: usize = 2;
 
 /// Whether a frame `b.width` wide gets tiles [`WIDE_TILES`] times
 /// `tile_size` wide: where each band still has at least one of them per
-/// thread (one thread from 1024 columns up, two threads from 1080p up).
+/// thread (at the default tile size of 512: one thread always, two
+/// threads from 1025 columns up, 1080p among them).
 /// The kernel's blocks follow the tile's width (up to 1024 columns) and set
 /// up half as many rows per sample, and in wide tiles they are tall
 /// (`nlmeans::block_rows`): one block per tile and thread at 1080p on two
