@@ -146,9 +146,10 @@ pub const WIDE_TILES: usize = 2;
 /// the median of 74 alternating rounds' ratios (faster in 57), the light
 /// layers alone 0.93x, the colour-only and feature-guided kernels (one
 /// job) level, and the CLI's file runs level (the default filter over 10
-/// rounds; the full filter 0.98, not resolved); at 4K on two threads the wide tiles about 0.97-0.98x (session
-/// 39) and tall blocks in them 0.96x by the median of 8 rounds. Neither
-/// the tiles nor the blocks change a bit of the output.
+/// rounds; the full filter 0.98, not resolved); at 4K on two threads the
+/// wide tiles about 0.97-0.98x (session 39) and tall blocks in them 0.96x
+/// by the median of 8 rounds. Neither the tiles nor the blocks change a
+/// bit of the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
     if tile_size == 0 {
         return false;
