@@ -142,8 +142,9 @@ pub const WIDE_TILES: usize = 2;
 /// threads, fewer border rows recomputed. On the Zen 4 of sessions 39-41
 /// (docs/performance.md): 0.93-0.94x the full filter's time on one thread;
 /// on two threads at 1080p (one wide tile of one block per thread and
-/// band, against tiles of 480 with 128-row blocks), from memory 0.956x by
-/// the median of 74 alternating rounds' ratios (faster in 57), the light
+/// band, against tiles of 480 with 128-row blocks), from memory 0.966x by
+/// the median of 86 alternating rounds' ratios (faster in 62; level in
+/// the runs of the session's second hour), the light
 /// layers alone 0.93x, the colour-only and feature-guided kernels (one
 /// job) level, and the CLI's file runs level (the default filter over 10
 /// rounds; the full filter 0.98, not resolved); at 4K on two threads the
@@ -151,10 +152,7 @@ pub const WIDE_TILES: usize = 2;
 /// by the median of 8 rounds. Neither the tiles nor the blocks change a
 /// bit of the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
-    if tile_size == 0 {
-        return false;
-    }
-    b.width.div_ceil(WIDE_TILES * tile_size) >= b.threads.max(1)
+    tile_size > 0 && b.width.div_ceil(WIDE_TILES * tile_size) >= b.threads.max(1)
 }
 
 /// The kernel's block height for tiles that are (or are not) [`wide_tiles`].
@@ -180,8 +178,9 @@ pub fn plan(b: &BudgetInput, tile_size: usize, limit_bytes: u64) -> Result<BandP
         // Only at full band height with two bands in flight: under a tight
         // limit, taller bands (less halo) and a second band in flight (no
         // idle thread at a band's end) are worth more than wider tiles.
-        if estimate(b, (band, wide, kernel_rows(b, true)), 0, MAX_BANDS_IN_FLIGHT) <= limit_bytes {
-            return plan_from(b, band, (wide, kernel_rows(b, true)), limit_bytes);
+        let tall = kernel_rows(b, true);
+        if estimate(b, (band, wide, tall), 0, MAX_BANDS_IN_FLIGHT) <= limit_bytes {
+            return plan_from(b, band, (wide, tall), limit_bytes);
         }
     }
     plan_from(b, band, (tile_size.max(1).min(b.width.max(1)), kernel_rows(b, false)), limit_bytes)

@@ -50,8 +50,9 @@ const BLOCK_H: usize = 128;
 /// 1080p tile, whose fewer border rows took 0.954-0.984x the time of
 /// [`BLOCK_H`] on one thread on the Zen 4 of session 38. On two threads
 /// with the wide tiles of session 41 (one per thread and band at 1080p,
-/// two at 4K), the full filter from memory took 0.956x the time of
-/// 480-wide tiles of 128-row blocks at 1080p (median of 74 rounds), and
+/// two at 4K), the full filter from memory took 0.966x the time of
+/// 480-wide tiles of 128-row blocks at 1080p (median of 86 rounds, level
+/// in the session's second hour), and
 /// 0.96x that of wide tiles of 128-row blocks at 4K (median of 8 rounds;
 /// docs/performance.md, session 41).
 const BLOCK_H_TALL: usize = 384;
