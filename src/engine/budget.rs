@@ -139,18 +139,18 @@ pub const WIDE_TILES: usize = 2;
 /// The kernel's blocks follow the tile's width (up to 1024 columns) and set
 /// up half as many rows per sample, and in wide tiles they are tall
 /// (`nlmeans::block_rows`): one block per tile and thread at 1080p on two
-/// threads, fewer border rows recomputed. On the Zen 4 of sessions 39-41
+/// threads, fewer border rows recomputed. On the Zen 4 of sessions 39-42
 /// (docs/performance.md): 0.93-0.94x the full filter's time on one thread;
 /// on two threads at 1080p (one wide tile of one block per thread and
 /// band, against tiles of 480 with 128-row blocks), from memory 0.966x by
 /// the median of 86 alternating rounds' ratios (faster in 62; level in
-/// the runs of the session's second hour), the light
-/// layers alone 0.93x, the colour-only and feature-guided kernels (one
-/// job) level, and the CLI's file runs level (the default filter over 10
-/// rounds; the full filter 0.98, not resolved); at 4K on two threads the
-/// wide tiles about 0.97-0.98x (session 39) and tall blocks in them 0.96x
-/// by the median of 8 rounds. Neither the tiles nor the blocks change a
-/// bit of the output.
+/// session 41's second hour) and 0.991x by 54 more in session 42, the
+/// full filter's file run 0.98x (session 42), the light layers alone
+/// 0.93x, the colour-only and feature-guided kernels (one job) level, the
+/// default filter's file run level; at 4K on two threads the wide tiles
+/// about 0.97-0.98x (session 39) and tall blocks in them 0.96x by the
+/// median of 8 rounds. Neither the tiles nor the blocks change a bit of
+/// the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
     tile_size > 0 && b.width.div_ceil(WIDE_TILES * tile_size) >= b.threads.max(1)
 }
