@@ -9,9 +9,12 @@
 #   bash benches/ab.sh cpus ROUNDS MODE WIDTH HEIGHT THREADS BIN_A BIN_B...
 #   bash benches/ab.sh files ROUNDS - WIDTH HEIGHT THREADS NLDENOISE_A NLDENOISE_B...
 #
-# alternate: runs the binaries one after the other, ROUNDS times, and prints
+# alternate: runs the binaries one after the other, ROUNDS times, in the
+#   reverse order every other round (a binary's place in the round moved
+#   the rounds' median by up to 2 % on the Zen 4 of session 42), and prints
 #   each one's minimum and all its times (RUNS=N runs per process, default 1,
-#   of which the binary reports the minimum).
+#   of which the binary reports the minimum; the i-th time of each binary
+#   is from round i).
 # paired: runs A and B at the same time, one thread each, pinned to cores 0
 #   and 1 (swapped every round), so that both see the same load; prints each
 #   round's B/A and the median, min and max of the ratios (RUNS default 2).
@@ -30,8 +33,9 @@
 #   single-threaded, cancels out). ROUNDS times, binaries in turn.
 # files: the file run of `benches/opencv_compare.sh` (`nldenoise denoise
 #   --layers auto`, EXR in and out) with each `nldenoise` binary in turn,
-#   ROUNDS times, on a WIDTHxHEIGHT frame from `examples/make_big_frame`
-#   (features and light layers, 31 channels, made once under target/);
+#   ROUNDS times (in the reverse order every other round), on a
+#   WIDTHxHEIGHT frame from `examples/make_big_frame` (features and light
+#   layers, 31 channels, made once under target/);
 #   prints each binary's minimum wall time, all its wall times, its median
 #   CPU time (user + sys), its median page faults and its output's size in
 #   bytes. FRAME="--features" changes the frame's channels (19 channels, as
@@ -48,13 +52,24 @@ minima() {
   awk '{ if (!($1 in m) || $2 < m[$1]) m[$1] = $2; s[$1] = s[$1] " " $2 }
        END { for (k in m) print k, "min", m[k], "all", s[k] }'
 }
+# The binaries of round $1 (of the rest): as given in odd rounds, reversed
+# in even ones, so that no binary always runs first.
+round_order() {
+  local i=$1; shift
+  if [ $((i % 2)) = 1 ]; then
+    printf '%s\n' "$@"
+  else
+    printf '%s\n' "$@" | tac
+  fi
+}
 how=$1; rounds=$2; mode=$3; w=$4; h=$5; shift 5
 radius=${RADIUS:-10}
 case "$how" in
   alternate)
     threads=$1; shift
-    for _ in $(seq "$rounds"); do
-      for b in "$@"; do
+    for i in $(seq "$rounds"); do
+      mapfile -t order < <(round_order "$i" "$@")
+      for b in "${order[@]}"; do
         echo "$b $("$b" "$mode" "$w" "$h" "$threads" "$radius" "${RUNS:-1}" | cut -d, -f6)"
       done
     done | minima
@@ -134,8 +149,9 @@ case "$how" in
       target/release/examples/make_big_frame "$w" "$h" "$frame" "${frame_flags[@]}" 2>/dev/null
     fi
     median() { tr ' ' '\n' | sed '/^$/d' | sort -g | awk '{ r[NR] = $1 } END { print r[int((NR + 1) / 2)] }'; }
-    for _ in $(seq "$rounds"); do
-      for b in "$@"; do
+    for i in $(seq "$rounds"); do
+      mapfile -t order < <(round_order "$i" "$@")
+      for b in "${order[@]}"; do
         /usr/bin/time -f '%e %U %S' -o "$tmp/t" perf stat -e page-faults -x, -o "$tmp/pf" \
           "$b" -q denoise "$frame" -o "$tmp/out.exr" --threads "$threads" "${args[@]}"
         echo "$b $(cat "$tmp/t") $(stat -c %s "$tmp/out.exr") $(grep page-faults "$tmp/pf" | cut -d, -f1)"
