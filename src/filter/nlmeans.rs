@@ -1229,24 +1229,14 @@ fn accumulate<const W: usize, const AVX512: bool, T: WeightSample>(
     let (c0, c1) = (rows.iter().map(|l| l.x0).max().unwrap_or(0), rows.iter().map(end).min().unwrap_or(0));
     let (u0, u1) = (rows.iter().map(|l| l.x0).min().unwrap_or(0), rows.iter().map(end).max().unwrap_or(0));
     let c1 = c1.max(c0);
-    // Lane by lane over its own columns there, each lane's rows read once:
-    // every pixel still receives its covering lanes' terms in lane order.
-    for l in rows {
-        for (a, b) in [(u0, c0.min(u1)), (c1.max(u0), u1)] {
-            let (a, b) = (a.max(l.x0), b.min(end(l)));
-            if a >= b {
-                continue;
-            }
-            let w = &l.w[(a - l.x0) as usize..(b - l.x0) as usize];
-            let at = row_off + (a - block.x0) as usize..row_off + (b - block.x0) as usize;
-            for (d, wk) in den[at.clone()].iter_mut().zip(w) {
-                *d += wk.value();
-            }
+    for x in (u0..c0.min(u1)).chain(c1.max(u0)..u1) {
+        let i = row_off + (x - block.x0) as usize;
+        for l in rows.iter().filter(|l| l.x0 <= x && x < end(l)) {
+            let k = (x - l.x0) as usize;
+            let w = l.w[k].value();
+            den[i] += w;
             for (c, n) in num.iter_mut().enumerate() {
-                let v = values[c].row(y + dy, a + l.dx, b + l.dx);
-                for ((n, wk), v) in n[at.clone()].iter_mut().zip(w).zip(v) {
-                    *n = wk.value().mul_add(*v, *n);
-                }
+                n[i] = w.mul_add(values[c].row(y + dy, x + l.dx, x + l.dx + 1)[0], n[i]);
             }
         }
     }
