@@ -52,7 +52,7 @@ const BLOCK_H: usize = 128;
 /// with the wide tiles of session 41 (one per thread and band at 1080p,
 /// two at 4K), the full filter from memory took 0.966x the time of
 /// 480-wide tiles of 128-row blocks at 1080p (median of 86 rounds, level
-/// in the session's second hour; 0.991x over 54 rounds in session 42), and
+/// in the session's second hour, and over 94 rounds in session 42), and
 /// 0.96x that of wide tiles of 128-row blocks at 4K (median of 8 rounds;
 /// docs/performance.md, session 41).
 const BLOCK_H_TALL: usize = 384;
