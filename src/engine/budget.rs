@@ -145,12 +145,12 @@ pub const WIDE_TILES: usize = 2;
 /// band, against tiles of 480 with 128-row blocks), from memory 0.966x by
 /// the median of 86 alternating rounds' ratios (faster in 62; level in
 /// session 41's second hour) and level over 94 more in session 42 (0.991
-/// over 54, 1.001 over 40), the full filter's file run 0.98x (session 42), the light layers alone
-/// 0.93x, the colour-only and feature-guided kernels (one job) level, the
-/// default filter's file run level; at 4K on two threads the wide tiles
-/// about 0.97-0.98x (session 39) and tall blocks in them 0.96x by the
-/// median of 8 rounds. Neither the tiles nor the blocks change a bit of
-/// the output.
+/// over 54, 1.001 over 40), the full filter's file run 0.98x (session
+/// 42), the light layers alone 0.93x, the colour-only and feature-guided
+/// kernels (one job) level, the default filter's file run level; at 4K on
+/// two threads the wide tiles about 0.97-0.98x (session 39) and tall
+/// blocks in them 0.96x by the median of 8 rounds. Neither the tiles nor
+/// the blocks change a bit of the output.
 pub fn wide_tiles(b: &BudgetInput, tile_size: usize) -> bool {
     tile_size > 0 && b.width.div_ceil(WIDE_TILES * tile_size) >= b.threads.max(1)
 }
