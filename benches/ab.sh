@@ -35,10 +35,12 @@
 #   --layers auto`, EXR in and out) with each `nldenoise` binary in turn,
 #   ROUNDS times (in the reverse order every other round), on a
 #   WIDTHxHEIGHT frame from `examples/make_big_frame` (features and light
-#   layers, 31 channels, made once under target/);
+#   layers, 31 channels, made once under target/), or with FRAMES=N a
+#   sequence of N links to it in one process (a batch: buffers reused
+#   from frame to frame);
 #   prints each binary's minimum wall time, all its wall times, its median
 #   CPU time (user + sys), its median page faults and its output's size in
-#   bytes. FRAME="--features" changes the frame's channels (19 channels, as
+#   bytes (all frames'). FRAME="--features" changes the frame's channels (19 channels, as
 #   benches/memory.sh), ARGS="--memory-limit 256M --search-radius 3
 #   --patch-radius 1" the denoise options (default "--layers auto").
 # RADIUS=R sets examples/timing's search radius (default 10; RADIUS=0 times
@@ -148,13 +150,21 @@ case "$how" in
       cargo build --release --example make_big_frame >/dev/null 2>&1
       target/release/examples/make_big_frame "$w" "$h" "$frame" "${frame_flags[@]}" 2>/dev/null
     fi
+    # FRAMES=N: a sequence of N frames (links to the one frame), one process.
+    input=("$frame"); out=out.exr
+    if [ "${FRAMES:-1}" -gt 1 ]; then
+      mkdir "$tmp/seq"
+      for n in $(seq "$FRAMES"); do ln -s "$PWD/$frame" "$(printf '%s/seq.%04d.exr' "$tmp/seq" "$n")"; done
+      input=("$tmp/seq/seq.####.exr"); out=
+    fi
     median() { tr ' ' '\n' | sed '/^$/d' | sort -g | awk '{ r[NR] = $1 } END { print r[int((NR + 1) / 2)] }'; }
     for i in $(seq "$rounds"); do
       mapfile -t order < <(round_order "$i" "$@")
       for b in "${order[@]}"; do
+        rm -rf "$tmp/out"; mkdir "$tmp/out"
         /usr/bin/time -f '%e %U %S' -o "$tmp/t" perf stat -e page-faults -x, -o "$tmp/pf" \
-          "$b" -q denoise "$frame" -o "$tmp/out.exr" --threads "$threads" "${args[@]}"
-        echo "$b $(cat "$tmp/t") $(stat -c %s "$tmp/out.exr") $(grep page-faults "$tmp/pf" | cut -d, -f1)"
+          "$b" -q denoise "${input[@]}" -o "$tmp/out/$out" --threads "$threads" "${args[@]}"
+        echo "$b $(cat "$tmp/t") $(cat "$tmp/out"/* | wc -c) $(grep page-faults "$tmp/pf" | cut -d, -f1)"
       done
     done > "$tmp/runs"
     awk '{ print $1, $2 }' "$tmp/runs" | minima

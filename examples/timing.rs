@@ -27,6 +27,10 @@ use nldenoise::geom::Rect;
 use nldenoise::image::Samples;
 
 fn main() {
+    // The allocator policy `nldenoise denoise` runs with (and embedders are
+    // told to set): since session 43 the runs after a process's first reuse
+    // its pages, as a batch's frames do.
+    nldenoise::engine::budget::bound_allocator();
     let a: Vec<String> = std::env::args().skip(1).collect();
     if a.len() < 4 {
         eprintln!("usage: timing MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]");
