@@ -27,7 +27,11 @@ def opencv_seconds(bgr8, threads):
     return time.perf_counter() - t
 
 
-def memory_seconds(timing, mode, threads):
-    """One examples/timing run of MODE on the 1920x1080 synthetic frame, r=10."""
-    out = subprocess.run([timing, mode, "1920", "1080", str(threads), "10", "1"], check=True, capture_output=True, text=True)
+def memory_seconds(timing, mode, threads, runs=1):
+    """examples/timing's MODE on the 1920x1080 synthetic frame, r=10: one
+    process, the best of `runs` runs. With runs=1 the run is the process's
+    first (cold: every buffer's pages faulted in); with runs=2 the best is the
+    second run (warm: the allocator's pages reused, as by a batch's later
+    frames or a library caller's later calls)."""
+    out = subprocess.run([timing, mode, "1920", "1080", str(threads), "10", str(runs)], check=True, capture_output=True, text=True)
     return float(out.stdout.strip().split(",")[5])
