@@ -3,6 +3,10 @@
 # through the streaming engine (examples/timing.rs), then the plots of
 # docs/performance.md. Writes target/scaling.csv and docs/performance/*.png.
 #   bash benches/scaling.sh            # about 12 minutes on 2 cores (ROUNDS=3)
+# WARM=1: each ratio round's run is the best of two in one process (the
+# second reuses the first's pages, as a batch's later frames do; session 43
+# measured the first run's page faults at about 8 % of a 1080p frame);
+# by default each is its process's first (cold).
 # Plotting needs matplotlib: installed in target/plot-venv on first use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,12 +24,14 @@ done
 # taken over the same minutes of this shared, noisy machine.
 # Each of these lines also goes to target/scaling-rounds.csv with its round.
 rounds=target/scaling-rounds.csv
+runs=1
+[ "${WARM:-0}" = 1 ] && runs=2
 : > "$rounds"
 for round in $(seq "${ROUNDS:-3}"); do
   for mode in colour full; do
     for threads in 2 1; do
       for size in "1920 1080" "3840 2160"; do
-        line=$($t $mode $size $threads 10 1)
+        line=$($t $mode $size $threads 10 "$runs")
         echo "$line" | tee -a "$csv"
         echo "$round,$line" >> "$rounds"
       done
