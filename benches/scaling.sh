@@ -4,8 +4,8 @@
 # docs/performance.md. Writes target/scaling.csv and docs/performance/*.png.
 #   bash benches/scaling.sh            # about 12 minutes on 2 cores (ROUNDS=3)
 # WARM=1: each ratio round's run is the best of two in one process (the
-# second reuses the first's pages, as a batch's later frames do; session 43
-# measured the first run's page faults at about 8 % of a 1080p frame);
+# second reuses the first's pages, as a batch's later frames do; in session
+# 43 a first run took about 1.09x a second's time at 1080p, full filter);
 # by default each is its process's first (cold).
 # Plotting needs matplotlib: installed in target/plot-venv on first use.
 set -euo pipefail
