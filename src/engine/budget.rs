@@ -230,7 +230,7 @@ fn plan_from(
 pub use crate::geom::even;
 
 /// Keep the C allocator's resident set within the budget without a page
-/// fault per fresh buffer (Linux glibc). Two settings, both measured
+/// fault per fresh buffer (Linux glibc). Three settings, each measured
 /// (docs/performance.md, "Bounded memory"):
 ///
 /// - `M_MMAP_THRESHOLD = 4 MiB`, which also disables glibc's dynamic
