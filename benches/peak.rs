@@ -32,6 +32,12 @@
 //!   `kernels::weights_avx512` (the same bits); throughput in weights per
 //!   second.
 //!
+//! - `clock_add_chain`: four dependent integer adds per loop step (one
+//!   cycle each: the loop's own instructions run beside the chain), on 1
+//!   and 2 threads: elements/s is the core's clock, which turns the
+//!   filter's nanoseconds per pixel-offset into cycles on a machine
+//!   without hardware counters (KVM hides the clock from `/proc/cpuinfo`).
+//!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
 //! once) by its time and by the operation peak.
@@ -291,6 +297,30 @@ fn portable(steps: usize) -> f32 {
 /// A chain runner: steps in, a checksum out.
 type Chains = fn(usize) -> f32;
 
+/// Steps of [`add_chain`] per run: a billion adds.
+const CLOCK_STEPS: usize = 250_000_000;
+
+/// `steps` steps of four dependent integer adds: four cycles per step on
+/// the cores we ran on (an add's latency is one cycle).
+#[cfg(target_arch = "x86_64")]
+fn add_chain(steps: usize) -> f32 {
+    let mut x = black_box(0u64);
+    for _ in 0..steps {
+        // SAFETY: register arithmetic only.
+        unsafe {
+            std::arch::asm!(
+                "add {0}, 1",
+                "add {0}, 1",
+                "add {0}, 1",
+                "add {0}, 1",
+                inout(reg) x,
+                options(nomem, nostack, pure)
+            )
+        };
+    }
+    x as f32
+}
+
 /// `f(steps)` on `threads` threads at once; the sum of their checksums.
 fn on_threads(threads: usize, f: Chains, steps: usize) -> f32 {
     std::thread::scope(|s| {
@@ -300,6 +330,16 @@ fn on_threads(threads: usize, f: Chains, steps: usize) -> f32 {
 }
 
 fn bench(c: &mut Criterion) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut g = c.benchmark_group("clock_add_chain");
+        g.sample_size(10);
+        for threads in [1usize, 2] {
+            g.throughput(Throughput::Elements((4 * CLOCK_STEPS * threads) as u64));
+            g.bench_function(format!("{threads}thread"), |b| b.iter(|| on_threads(threads, add_chain, CLOCK_STEPS)));
+        }
+        g.finish();
+    }
     let mut g = c.benchmark_group("peak_mul_add_f32");
     g.sample_size(10);
     let mut tiers: Vec<(&str, usize, Chains)> = vec![("portable_4", 4, portable)];
