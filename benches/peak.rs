@@ -298,6 +298,7 @@ fn portable(steps: usize) -> f32 {
 type Chains = fn(usize) -> f32;
 
 /// Steps of [`add_chain`] per run: a billion adds.
+#[cfg(target_arch = "x86_64")]
 const CLOCK_STEPS: usize = 250_000_000;
 
 /// `steps` steps of four dependent integer adds: four cycles per step on
