@@ -36,7 +36,8 @@
 //!   cycle each: the loop's own instructions run beside the chain), on 1
 //!   and 2 threads: elements/s is the core's clock, which turns the
 //!   filter's nanoseconds per pixel-offset into cycles on a machine
-//!   without hardware counters (KVM hides the clock from `/proc/cpuinfo`).
+//!   without hardware counters (under KVM `/proc/cpuinfo` shows a fixed
+//!   nominal rate, not the clock the cores run at).
 //!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
