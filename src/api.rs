@@ -77,7 +77,8 @@ pub fn denoise_file(
 /// Stream `input` to `output` through the tiled engine in bounded memory.
 ///
 /// The output holds every input channel; the denoised ones are `f32` (or
-/// `f16` with `opts.half`), the others keep their type and bits. Written to a
+/// `f16` with `opts.half`), the others keep their type and bits. With
+/// `opts.carry` false it holds the denoised channels alone. Written to a
 /// temporary file and renamed into place when complete.
 pub fn denoise_file_streaming(
     input: &Path,
@@ -97,6 +98,7 @@ pub fn denoise_file_streaming(
     let channels: Vec<SinkChannel> = names
         .iter()
         .zip(source.kinds())
+        .filter(|(n, _)| opts.carry || outputs.contains(n))
         .map(|(n, &k)| SinkChannel {
             name: n.clone(),
             kind: if outputs.contains(n) {

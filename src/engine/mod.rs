@@ -56,8 +56,10 @@ pub trait RowSource: Send {
 
 /// Where the engine writes denoised rows.
 pub trait RowSink: Send {
-    /// The next full-width rows of every channel (in the source's channel
-    /// order), in increasing y, each row exactly once.
+    /// The next full-width rows of every channel of the sink (the source's
+    /// channels, or with [`StreamOptions::carry`] false its denoised ones
+    /// alone, in the source's channel order), in increasing y, each row
+    /// exactly once.
     fn write_rows(&mut self, rows: Vec<ChannelRows>) -> Result<(), Error>;
     /// All rows were written: complete the output.
     fn finish(&mut self) -> Result<(), Error>;
@@ -79,6 +81,11 @@ pub struct StreamOptions {
     pub out_block_rows: usize,
     /// The ZIP level of a file sink (`exrio::zip::LEVELS`).
     pub zip_level: i32,
+    /// Carry the channels that are not denoised through to the sink
+    /// (default); false: the sink gets the denoised channels alone, and the
+    /// source's other channels are not read. The memory estimate still
+    /// counts the carried rows (an upper bound).
+    pub carry: bool,
 }
 
 impl Default for StreamOptions {
@@ -90,6 +97,7 @@ impl Default for StreamOptions {
             half: false,
             out_block_rows: 16,
             zip_level: crate::exrio::zip::DEFAULT_LEVEL,
+            carry: true,
         }
     }
 }
@@ -149,14 +157,24 @@ struct BandIn {
     other_rows: Vec<ChannelRows>,
 }
 
-/// Indices of the source's channels that the roles use, and which are denoised outputs.
+/// Indices of the source's channels that the roles use, which are denoised
+/// outputs, which are read only to be carried through, and which the sink
+/// gets (in its order).
 struct ChannelPlan {
     filter_idx: Vec<usize>,
     other_idx: Vec<usize>,
     output_idx: Vec<usize>,
+    sink_idx: Vec<usize>,
 }
 
-fn channel_plan(names: &[String], roles: &ChannelRoles) -> Result<ChannelPlan, Error> {
+impl ChannelPlan {
+    /// Whether the sink gets channel `i` of the source.
+    fn sinks(&self, i: usize) -> bool {
+        self.sink_idx.binary_search(&i).is_ok()
+    }
+}
+
+fn channel_plan(names: &[String], roles: &ChannelRoles, carry: bool) -> Result<ChannelPlan, Error> {
     let index = |n: &str| {
         names
             .iter()
@@ -170,9 +188,15 @@ fn channel_plan(names: &[String], roles: &ChannelRoles) -> Result<ChannelPlan, E
             filter_idx.push(i);
         }
     }
-    let other_idx = (0..names.len()).filter(|i| !filter_idx.contains(i)).collect();
-    let output_idx = roles.outputs().iter().map(|n| index(n)).collect::<Result<_, _>>()?;
-    Ok(ChannelPlan { filter_idx, other_idx, output_idx })
+    let output_idx: Vec<usize> = roles.outputs().iter().map(|n| index(n)).collect::<Result<_, _>>()?;
+    let (other_idx, sink_idx) = if carry {
+        ((0..names.len()).filter(|i| !filter_idx.contains(i)).collect(), (0..names.len()).collect())
+    } else {
+        let mut sink: Vec<usize> = output_idx.clone();
+        sink.sort_unstable();
+        (Vec::new(), sink)
+    };
+    Ok(ChannelPlan { filter_idx, other_idx, output_idx, sink_idx })
 }
 
 /// The halo, the schedule the memory budget allows, and the thread count for
@@ -183,7 +207,7 @@ pub fn plan_stream(
     params: &Params,
     opts: &StreamOptions,
 ) -> Result<(usize, BandPlan, usize), Error> {
-    let cp = channel_plan(&source.channel_names(), roles)?;
+    let cp = channel_plan(&source.channel_names(), roles, opts.carry)?;
     plan_with(source, roles, params, opts, &cp)
 }
 
@@ -274,7 +298,7 @@ pub fn denoise_stream(
     params.validate()?;
     let frame = source.data_window();
     let names = source.channel_names();
-    let cp = channel_plan(&names, roles)?;
+    let cp = channel_plan(&names, roles, opts.carry)?;
     let (halo, plan, threads) = plan_with(source, roles, params, opts, &cp)?;
     info!(
         "plan: bands of {} rows, tiles {}x{} (kernel blocks up to {} rows), halo {halo}, queue depth {}, {} bands in flight, estimated peak {:.1} MiB of {:.1} MiB allowed",
@@ -485,8 +509,8 @@ struct InFlight {
 }
 
 impl InFlight {
-    /// Wait for the band's tiles and assemble its rows (every channel, by
-    /// source index).
+    /// Wait for the band's tiles and assemble its rows (every channel of the
+    /// sink, in the source's order).
     fn finish(self, ctx: &BandCtx<'_>, counters: &mut FilterCounters) -> Result<Vec<ChannelRows>, Error> {
         let InFlight { work, results, carried } = self;
         let mut first_err = None;
@@ -518,10 +542,13 @@ impl InFlight {
             out[i] = Some(ChannelRows { rect: work.band, samples });
         }
         debug!("band {:?}: {} tiles", work.band, work.tiles.len());
-        out.into_iter()
-            .enumerate()
-            .map(|(i, r)| {
-                r.ok_or_else(|| Error::Internal(format!("channel {} missing from band output", ctx.names[i])))
+        ctx.cp
+            .sink_idx
+            .iter()
+            .map(|&i| {
+                out[i]
+                    .take()
+                    .ok_or_else(|| Error::Internal(format!("channel {} missing from band output", ctx.names[i])))
             })
             .collect()
     }
@@ -558,7 +585,7 @@ fn prepare_band(
     // Filter channels that are carried (not denoised) go out over the band only.
     let mut carried: Vec<(usize, ChannelRows)> = Vec::new();
     for (&i, r) in cp.filter_idx.iter().zip(&filter_rows) {
-        if !cp.output_idx.contains(&i) {
+        if !cp.output_idx.contains(&i) && cp.sinks(i) {
             carried.push((i, r.rows(band.y0, band.y1)));
         }
     }

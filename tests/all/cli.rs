@@ -141,6 +141,47 @@ fn zip_levels_write_the_same_samples() {
     }
 }
 
+/// `--denoised-only` writes the denoised channels alone, streaming or
+/// whole-frame (`--tile-size 0`), with the bits a full output holds for
+/// them (tiles of 16 against the whole frame: the engine's equality holds
+/// for the channels it keeps), and with `--half` in half floats.
+#[test]
+fn denoised_only_writes_the_denoised_channels_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = fixture("cornell_0032spp.exr");
+    let write = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        bin()
+            .arg("denoise")
+            .arg(&input)
+            .arg("-o")
+            .arg(&out)
+            .args(["--search-radius", "3", "--layers", "auto", "--threads", "2"])
+            .args(extra)
+            .assert()
+            .success();
+        exrio::read_frame(&out).unwrap()
+    };
+    let all = write("all.exr", &["--tile-size", "0"]);
+    let denoised = ["B", "G", "R", "direct.B", "direct.G", "direct.R", "indirect.B", "indirect.G", "indirect.R"];
+    assert!(all.channels.len() > denoised.len(), "the fixture has channels to carry");
+    for (name, extra) in [
+        ("streamed.exr", &["--denoised-only", "--tile-size", "16"][..]),
+        ("whole.exr", &["--denoised-only", "--tile-size", "0"][..]),
+    ] {
+        let only = write(name, extra);
+        assert_eq!(only.channel_names(), denoised, "{name}");
+        for c in &only.channels {
+            assert_eq!(c.kind, SampleKind::F32, "{name}: {}", c.name);
+            let full = all.channel(&c.name).unwrap();
+            assert!(c.samples() == full.samples(), "{name}: channel {} differs from the full output's", c.name);
+        }
+    }
+    let half = write("half.exr", &["--denoised-only", "--half"]);
+    assert_eq!(half.channel_names(), denoised);
+    assert!(half.channels.iter().all(|c| c.kind == SampleKind::F16));
+}
+
 #[test]
 fn info_prints_roles_and_plan() {
     let out = bin()
