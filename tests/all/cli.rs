@@ -180,6 +180,15 @@ fn denoised_only_writes_the_denoised_channels_alone() {
     let half = write("half.exr", &["--denoised-only", "--half"]);
     assert_eq!(half.channel_names(), denoised);
     assert!(half.channels.iter().all(|c| c.kind == SampleKind::F16));
+    // `info` on such an output (no variance: not denoisable as it is) lists
+    // its channels, then fails naming the file and what is missing.
+    let out = dir.path().join("half.exr");
+    let run = bin().arg("info").arg(&out).assert().failure();
+    let (stdout, stderr) = (String::from_utf8_lossy(&run.get_output().stdout), stderr_of(&run));
+    for name in denoised {
+        assert!(stdout.contains(&format!("  {name:<24} half")), "{name} missing from:\n{stdout}");
+    }
+    assert!(stderr.contains("half.exr") && stderr.contains("no variance"), "{stderr}");
 }
 
 #[test]
