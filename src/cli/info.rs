@@ -63,7 +63,7 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
             // print, then the reason, with a failing exit.
             writeln!(o, "channels ({}):", names.len())?;
             for (name, kind) in names.iter().zip(source.kinds()) {
-                writeln!(o, "  {:<24} {}", name, kind.to_string())?;
+                writeln!(o, "  {:<24} {}", name, kind)?;
             }
             super::out(&o)?;
             return Err(e.into());
