@@ -55,24 +55,22 @@ pub fn run(a: InfoArgs) -> anyhow::Result<()> {
     )?;
     let l = exrio::layout_of(source.header());
     writeln!(o, "layout: {}, {} compression, {} line order", l.blocks, l.compression, l.line_order)?;
-    let roles = match roles::detect(&a.input, &names, &a.channels.options()) {
+    let roles = roles::detect(&a.input, &names, &a.channels.options());
+    writeln!(o, "channels ({}):", names.len())?;
+    for (name, kind) in names.iter().zip(source.kinds()) {
+        let role = roles.as_ref().map_or(String::new(), |r| r.role_of(name));
+        writeln!(o, "  {:<24} {:<6} {}", name, kind.to_string(), role)?;
+    }
+    // A file the denoiser cannot use as mapped (a `denoise --denoised-only`
+    // output, say) still gets its channels listed, then the reason, with a
+    // failing exit.
+    let roles = match roles {
         Ok(roles) => roles,
         Err(e) => {
-            // The file is readable but not denoisable as mapped (a
-            // `denoise --denoised-only` output, say): its channels still
-            // print, then the reason, with a failing exit.
-            writeln!(o, "channels ({}):", names.len())?;
-            for (name, kind) in names.iter().zip(source.kinds()) {
-                writeln!(o, "  {:<24} {}", name, kind)?;
-            }
             super::out(&o)?;
             return Err(e.into());
         }
     };
-    writeln!(o, "channels ({}):", names.len())?;
-    for (name, kind) in names.iter().zip(source.kinds()) {
-        writeln!(o, "  {:<24} {:<6} {}", name, kind.to_string(), roles.role_of(name))?;
-    }
     writeln!(o, "denoiser will use:")?;
     writeln!(o, "  colour: {}", roles.colour.join(","))?;
     match &roles.variance {
