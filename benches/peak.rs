@@ -39,6 +39,13 @@
 //!   without hardware counters (under KVM `/proc/cpuinfo` shows a fixed
 //!   nominal rate, not the clock the cores run at).
 //!
+//! - `memory_rates` (AVX-512, one thread): 512-bit loads (each into a
+//!   `vmaxps` on one of four accumulators) and 512-bit stores over a buffer
+//!   of 16 KiB (it stays in L1) and of 512 KiB (in L2, out of L1), four
+//!   unrolled per loop step; elements/s is vectors per second, and the
+//!   clock over it the cycles a vector load or store takes: the memory
+//!   side of the kernel's rate, as `peak_*` is its arithmetic side.
+//!
 //! Throughput is reported in elements/s = operations per second.
 //! docs/performance.md divides the filter's operation count (an FMA counts
 //! once) by its time and by the operation peak.
@@ -323,6 +330,60 @@ fn add_chain(steps: usize) -> f32 {
     x as f32
 }
 
+/// Buffer sizes of `memory_rates`, in bytes: L1-resident and L2-resident.
+#[cfg(target_arch = "x86_64")]
+const MEMORY_BYTES: [usize; 2] = [16 << 10, 512 << 10];
+
+/// Vectors loaded or stored per `memory_rates` run: 2 GB worth.
+#[cfg(target_arch = "x86_64")]
+const MEMORY_VECTORS: usize = 2_000_000_000 / 64;
+
+/// `MEMORY_VECTORS` 512-bit loads over `buf`, again and again, each into a
+/// `vmaxps` on one of four accumulators (so loads, not the dependency, limit).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn vector_loads(buf: &[f32]) -> f32 {
+    use std::arch::x86_64::*;
+    let n = buf.len() / 16;
+    assert!(n.is_multiple_of(4) && n > 0, "whole steps of four vectors");
+    let mut a = [_mm512_setzero_ps(); 4];
+    for _ in 0..MEMORY_VECTORS / n {
+        for i in (0..n).step_by(4) {
+            for (k, acc) in a.iter_mut().enumerate() {
+                // SAFETY: `i + k < n`: inside `buf`.
+                *acc = _mm512_max_ps(*acc, unsafe { _mm512_loadu_ps(buf.as_ptr().add(16 * (i + k))) });
+            }
+        }
+    }
+    _mm512_reduce_add_ps(_mm512_add_ps(_mm512_add_ps(a[0], a[1]), _mm512_add_ps(a[2], a[3])))
+}
+
+/// `MEMORY_VECTORS` 512-bit stores over `buf`, again and again.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn vector_stores(buf: &mut [f32]) -> f32 {
+    use std::arch::x86_64::*;
+    let n = buf.len() / 16;
+    assert!(n.is_multiple_of(4) && n > 0, "whole steps of four vectors");
+    let mut v = _mm512_set1_ps(1.0);
+    for _ in 0..MEMORY_VECTORS / n {
+        for i in (0..n).step_by(4) {
+            for k in 0..4 {
+                // SAFETY: `i + k < n`: inside `buf`.
+                unsafe { _mm512_storeu_ps(buf.as_mut_ptr().add(16 * (i + k)), v) };
+            }
+        }
+        v = _mm512_add_ps(v, _mm512_set1_ps(1e-7));
+    }
+    buf[0]
+}
+
 /// `f(steps)` on `threads` threads at once; the sum of their checksums.
 fn on_threads(threads: usize, f: Chains, steps: usize) -> f32 {
     std::thread::scope(|s| {
@@ -339,6 +400,24 @@ fn bench(c: &mut Criterion) {
         for threads in [1usize, 2] {
             g.throughput(Throughput::Elements((4 * CLOCK_STEPS * threads) as u64));
             g.bench_function(format!("{threads}thread"), |b| b.iter(|| on_threads(threads, add_chain, CLOCK_STEPS)));
+        }
+        g.finish();
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        let mut g = c.benchmark_group("memory_rates");
+        g.sample_size(10);
+        for bytes in MEMORY_BYTES {
+            let mut buf = vec![1.0f32; bytes / 4];
+            let vectors = MEMORY_VECTORS / (buf.len() / 16) * (buf.len() / 16);
+            g.throughput(Throughput::Elements(vectors as u64));
+            let kib = bytes >> 10;
+            // SAFETY: the CPU supports AVX-512F (detected above).
+            g.bench_function(format!("load512_{kib}KiB"), |b| b.iter(|| unsafe { vector_loads(black_box(&buf)) }));
+            // SAFETY: as above.
+            g.bench_function(format!("store512_{kib}KiB"), |b| {
+                b.iter(|| unsafe { vector_stores(black_box(&mut buf)) })
+            });
         }
         g.finish();
     }
