@@ -58,7 +58,13 @@ pub fn denoise_frame(
     Ok(Report { roles, halo: pipeline.halo(), replaced, repaired: out.repaired })
 }
 
-/// Read `input`, denoise it, and write `output` atomically.
+/// Read `input`, denoise it, and write `output` atomically, every input
+/// channel kept. For the denoised channels alone (the CLI's
+/// `--denoised-only` with `--tile-size 0`), call [`denoise_frame`], keep
+/// the channels its [`Report::replaced`] names
+/// (`frame.channels.retain(|c| report.replaced.contains(&c.name))`) and
+/// write the frame; streamed, set [`crate::engine::StreamOptions::carry`]
+/// to false in [`denoise_file_streaming`].
 pub fn denoise_file(
     input: &Path,
     output: &Path,
