@@ -1,5 +1,7 @@
-//! End-to-end frame times from memory through the streaming engine (tiles of
-//! 256, halo recomputation included; no file I/O): 1080p, colour-only and the
+//! End-to-end frame times from memory through the streaming engine (its
+//! default plan, as `nldenoise denoise` runs: tiles of up to 512 pixels, or
+//! wide ones where `engine::budget::wide_tiles` plans them; halo
+//! recomputation included; no file I/O): 1080p, colour-only and the
 //! full default filter (albedo, normal and depth features, direct and
 //! indirect light layers), r = 10, f = 3, on 1 and 2 threads; and the
 //! whole-frame path for comparison. 4K runs are opt-in (each sample takes up
