@@ -101,16 +101,16 @@ pub fn denoise_file_streaming(
     let names = source.channel_names();
     let roles = roles::detect(input, &names, roles_opts)?;
     let outputs = roles.outputs();
-    let channels: Vec<SinkChannel> = names
-        .iter()
-        .zip(source.kinds())
-        .filter(|(n, _)| opts.carry || outputs.contains(n))
-        .map(|(n, &k)| SinkChannel {
-            name: n.clone(),
-            kind: if outputs.contains(n) {
+    // The sink's channels, as the engine will hand them over.
+    let channels: Vec<SinkChannel> = engine::sink_channels(&names, &roles, opts.carry)
+        .map_err(|e| e.in_file(input))?
+        .into_iter()
+        .map(|i| SinkChannel {
+            name: names[i].clone(),
+            kind: if outputs.contains(&names[i]) {
                 if opts.half { exrio::SampleKind::F16 } else { exrio::SampleKind::F32 }
             } else {
-                k
+                source.kinds()[i]
             },
         })
         .collect();

@@ -199,6 +199,14 @@ fn channel_plan(names: &[String], roles: &ChannelRoles, carry: bool) -> Result<C
     Ok(ChannelPlan { filter_idx, other_idx, output_idx, sink_idx })
 }
 
+/// The source channels (indices into `names`, in its order) that
+/// [`denoise_stream`] hands its sink: every channel, or with `carry` false
+/// the denoised ones alone. A sink that needs its channel list up front (a
+/// file's header) takes it from here.
+pub fn sink_channels(names: &[String], roles: &ChannelRoles, carry: bool) -> Result<Vec<usize>, Error> {
+    Ok(channel_plan(names, roles, carry)?.sink_idx)
+}
+
 /// The halo, the schedule the memory budget allows, and the thread count for
 /// streaming `source` with these roles, parameters and options.
 pub fn plan_stream(
