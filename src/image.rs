@@ -8,6 +8,21 @@ use half::slice::HalfFloatSliceExt;
 
 use crate::geom::Rect;
 
+/// `n` copies of `value`, every page written now.
+///
+/// `vec![0.0; n]` takes its memory zeroed from the allocator (`calloc`),
+/// which leaves fresh pages untouched for the kernel to map on first access.
+/// A buffer *read* before it is written (an accumulator, a `+=` sum) then
+/// faults twice per page: the read maps the shared zero page, the write
+/// replaces it, and the kernel flushes that page's TLB entry on every core
+/// running the process, an interrupt to each (docs/performance.md, session
+/// 46). Written here, each page faults once, on the write.
+pub fn written<T: Copy>(value: T, n: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(n);
+    v.resize(n, value);
+    v
+}
+
 /// One channel of `f32` samples covering `rect`, row-major.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plane {
@@ -18,7 +33,7 @@ pub struct Plane {
 impl Plane {
     /// A plane filled with `value`.
     pub fn filled(rect: Rect, value: f32) -> Plane {
-        Plane { rect, data: vec![value; rect.area()] }
+        Plane { rect, data: written(value, rect.area()) }
     }
 
     /// A plane from row-major samples; `None` when the length does not match.

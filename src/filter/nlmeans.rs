@@ -870,7 +870,8 @@ pub(super) struct Aligned<T = f32> {
 impl<T: Copy + Default> Aligned<T> {
     pub(super) fn zeroed(len: usize) -> Aligned<T> {
         const { assert!(size_of::<T>() == 4) };
-        let data = vec![T::default(); len + 15];
+        // Written now: the accumulators are read before they are written.
+        let data = crate::image::written(T::default(), len + 15);
         let off = data.as_ptr().align_offset(64);
         Aligned { off: if off < 16 { off } else { 0 }, data, len }
     }
