@@ -3,10 +3,12 @@
 # through the streaming engine (examples/timing.rs), then the plots of
 # docs/performance.md. Writes target/scaling.csv and docs/performance/*.png.
 #   bash benches/scaling.sh            # about 12 minutes on 2 cores (ROUNDS=3)
-# WARM=1: each ratio round's run is the best of two in one process (the
-# second reuses the first's pages, as a batch's later frames do; in session
-# 43 a first run took about 1.09x a second's time at 1080p, full filter);
-# by default each is its process's first (cold).
+# WARM=1: each ratio round's run is the second of two in one process (it
+# reuses the first's pages, as a batch's later frames do; in session 43 a
+# first run took about 1.09x a second's time at 1080p, full filter): its own
+# time (`REPORT=last`), not the best of the two, which would favour a fast
+# first run (until session 46 it was the best). By default each is its
+# process's first (cold).
 # Plotting needs matplotlib: installed in target/plot-venv on first use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,7 +27,7 @@ done
 # Each of these lines also goes to target/scaling-rounds.csv with its round.
 rounds=target/scaling-rounds.csv
 runs=1
-[ "${WARM:-0}" = 1 ] && runs=2
+[ "${WARM:-0}" = 1 ] && runs=2 && export REPORT=last
 : > "$rounds"
 for round in $(seq "${ROUNDS:-3}"); do
   for mode in colour full; do
