@@ -48,6 +48,11 @@ pub trait RowSource: Send {
     fn sample_bytes(&self) -> Vec<usize> {
         vec![4; self.channel_names().len()]
     }
+    /// Which channels the run's [`read_rows`](RowSource::read_rows) calls
+    /// will ask for: called once, before the first of them. A hint: a source
+    /// may skip decoding the others (with [`StreamOptions::carry`] false,
+    /// every channel the filter does not use); the default ignores it.
+    fn select_channels(&mut self, _channels: &[usize]) {}
     /// The given channels over full-width `rows` (inside the data window).
     /// Calls come with non-decreasing `rows.y0`; consecutive requests overlap
     /// by the halo.
@@ -338,6 +343,9 @@ pub fn denoise_stream(
         kernel_time: Duration::ZERO,
         repaired: 0,
     };
+    let mut read: Vec<usize> = cp.filter_idx.iter().chain(&cp.other_idx).copied().collect();
+    read.sort_unstable();
+    source.select_channels(&read);
     let names_ref = &names;
     let cp_ref = &cp;
     let pool_ref = &pool;

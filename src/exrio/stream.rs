@@ -68,6 +68,10 @@ pub struct ExrSource {
     data_window: Rect,
     names: Vec<String>,
     kinds: Vec<SampleKind>,
+    /// The channels blocks are decoded for (all until
+    /// [`RowSource::select_channels`] names some); the others' lines are
+    /// checked and skipped.
+    selected: Vec<bool>,
     cache: BTreeMap<(i64, i64), DecodedBlock>,
     /// The decoders' block-sized buffers, kept while the file is read.
     scratch: super::zip::ScratchPool,
@@ -99,8 +103,9 @@ impl ExrSource {
         let pos = header.own_attributes.layer_position;
         let data_window = Rect::from_origin_size(pos.0 as i64, pos.1 as i64, header.layer_size.0, header.layer_size.1);
         let names = header.channels.list.iter().map(|c| c.name.to_string()).collect();
-        let kinds = header.channels.list.iter().map(|c| kind_of(c.sample_type)).collect();
+        let kinds: Vec<SampleKind> = header.channels.list.iter().map(|c| kind_of(c.sample_type)).collect();
         Ok(ExrSource {
+            selected: vec![true; kinds.len()],
             path: path.to_path_buf(),
             bytes,
             header,
@@ -158,6 +163,9 @@ impl ExrSource {
                     format!("block at {:?} holds fewer bytes than its lines", (rect.x0, rect.y0)),
                 ));
             }
+            if !self.selected[line.channel] {
+                continue;
+            }
             match (data, &mut channels[line.channel]) {
                 (BlockBytes::Plain(d), Samples::F16(v)) => {
                     v.extend(d[range].chunks_exact(2).map(|b| half::f16::from_ne_bytes([b[0], b[1]])))
@@ -189,7 +197,7 @@ impl ExrSource {
                 }
             }
         }
-        if channels.iter().any(|c| c.len() != n) {
+        if channels.iter().zip(&self.selected).any(|(c, &selected)| selected && c.len() != n) {
             return Err(exr_err(
                 &self.path,
                 format!("block at {:?} decoded to the wrong number of samples", (rect.x0, rect.y0)),
@@ -309,7 +317,19 @@ impl RowSource for ExrSource {
         self.kinds.iter().map(|k| if *k == SampleKind::F16 { 2 } else { 4 }).collect()
     }
 
+    fn select_channels(&mut self, channels: &[usize]) {
+        self.selected = (0..self.kinds.len()).map(|i| channels.contains(&i)).collect();
+        // Blocks decoded before the selection may lack a channel it adds.
+        self.cache.clear();
+    }
+
     fn read_rows(&mut self, channels: &[usize], rows: Rect) -> Result<Vec<ChannelRows>, Error> {
+        if let Some(c) = channels.iter().find(|&&c| !self.selected.get(c).copied().unwrap_or(false)) {
+            return Err(Error::Internal(format!(
+                "{}: channel {c} was not selected for reading (RowSource::select_channels)",
+                self.path.display()
+            )));
+        }
         let rows = Rect { x0: self.data_window.x0, x1: self.data_window.x1, ..rows }.intersect(&self.data_window);
         self.fill_cache(rows)?;
         let w = rows.width();

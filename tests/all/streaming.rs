@@ -270,3 +270,40 @@ fn zip_chunks_decode_to_the_same_bits() {
         }
     }
 }
+
+/// A file source told which channels a run reads (`select_channels`, as
+/// the engine does with `carry` false) decodes those alone, to the bits it
+/// reads without the hint, in every file layout; asking it for another is
+/// an error naming the file, not a panic or wrong rows.
+#[test]
+fn a_file_source_decodes_the_selected_channels_alone() {
+    use nldenoise::engine::RowSource;
+    use nldenoise::exrio::stream::ExrSource;
+    let dir = tempfile::tempdir().unwrap();
+    let frame = Rect::from_origin_size(2, -4, 37, 29);
+    let kinds = ALL_KINDS[ALL_KINDS.len() - 1];
+    let f = to_frame(&frame_inputs(frame, 9, kinds), frame, true);
+    assert!(f.channels.len() > 4);
+    let layouts = [
+        WriteOptions { compression: OutputCompression::Zip, tiles: None, decreasing: false },
+        WriteOptions { compression: OutputCompression::Piz, tiles: Some((16, 8)), decreasing: false },
+        WriteOptions { compression: OutputCompression::None, tiles: Some((8, 8)), decreasing: true },
+    ];
+    for (i, options) in layouts.iter().enumerate() {
+        let path = dir.path().join(format!("in{i}.exr"));
+        exrio::write_frame(&path, &f, options).unwrap();
+        let selected = [1, 3, f.channels.len() - 1];
+        let mut all = ExrSource::open(&path).unwrap();
+        let mut some = ExrSource::open(&path).unwrap();
+        some.select_channels(&selected);
+        // Overlapping windows down the frame, as the engine asks.
+        for (y0, y1) in [(-4, 9), (3, 17), (15, 25)] {
+            let rows = Rect { y0, y1, ..frame };
+            let want = all.read_rows(&selected, rows).unwrap();
+            let got = some.read_rows(&selected, rows).unwrap();
+            assert!(got == want, "layout {i}, rows {y0}..{y1}");
+        }
+        let err = some.read_rows(&[0], Rect { y0: 20, y1: 25, ..frame }).unwrap_err().to_string();
+        assert!(err.contains(&format!("in{i}.exr")) && err.contains("not selected"), "{err}");
+    }
+}
