@@ -14,7 +14,10 @@ buffers' pages faulted in), and the full filter also warm (the second of two
 runs in one process, as a batch's later frames or a library caller's later
 calls run; OpenCV's calls after the first are warm too). All are run alternately,
 ROUNDS times; the medians, the ratios to OpenCV, and each round's own
-ratios (runs of the same minutes) are printed.
+ratios (runs of the same minutes) are printed; then the CPU time (every
+thread's) of OpenCV's runs and of the full filter's from memory, cold and
+warm, which the host's other guests move less than the wall times (since
+session 46).
 """
 import statistics
 import subprocess
@@ -23,7 +26,7 @@ import time
 
 import cv2
 
-from opencv_common import memory_seconds, opencv_seconds, tone_mapped_bgr8
+from opencv_common import memory_times, opencv_times, tone_mapped_bgr8
 
 exr, binary, threads, rounds, timing = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 extra = sys.argv[6:] or ["--layers", "auto"]
@@ -31,15 +34,24 @@ bgr8 = tone_mapped_bgr8(exr)
 
 
 ours, theirs, mem_colour, mem_full, mem_fullvar, mem_warm = [], [], [], [], [], []
+# CPU seconds (every thread's) of OpenCV's runs and of the full filter's,
+# cold and warm: the host's other guests move them less than wall times.
+cpu_theirs, cpu_full, cpu_warm = [], [], []
 for _ in range(rounds):
-    theirs.append(opencv_seconds(bgr8, threads))
+    wall, cpu = opencv_times(bgr8, threads)
+    theirs.append(wall)
+    cpu_theirs.append(cpu)
     t = time.perf_counter()
     subprocess.run([binary, "-q", "denoise", exr, "-o", "/tmp/opencv_compare_out.exr", "--threads", str(threads), *extra], check=True)
     ours.append(time.perf_counter() - t)
-    mem_colour.append(memory_seconds(timing, "colour", threads))
-    mem_full.append(memory_seconds(timing, "full", threads))
-    mem_fullvar.append(memory_seconds(timing, "full-var", threads))
-    mem_warm.append(memory_seconds(timing, "full", threads, runs=2))
+    mem_colour.append(memory_times(timing, "colour", threads)[0])
+    wall, cpu = memory_times(timing, "full", threads)
+    mem_full.append(wall)
+    cpu_full.append(cpu)
+    mem_fullvar.append(memory_times(timing, "full-var", threads)[0])
+    wall, cpu = memory_times(timing, "full", threads, runs=2)
+    mem_warm.append(wall)
+    cpu_warm.append(cpu)
 
 h, w = bgr8.shape[:2]
 mo, mt = statistics.median(ours), statistics.median(theirs)
@@ -72,3 +84,9 @@ print(
     f"{['%.2f' % x for x in rounds_warm]}, faster than OpenCV in {sum(x < 1 for x in rounds_warm)} of {rounds}"
 )
 print(f"round ratios, file / OpenCV: median {statistics.median(rounds_file):.2f} {['%.2f' % x for x in rounds_file]}")
+ct, cf, cw = (statistics.median(x) for x in (cpu_theirs, cpu_full, cpu_warm))
+print(
+    f"CPU time (every thread's), medians: OpenCV {ct:.2f} s {['%.2f' % x for x in cpu_theirs]}, "
+    f"memory full {cf:.2f} s {['%.2f' % x for x in cpu_full]}, warm {cw:.2f} s {['%.2f' % x for x in cpu_warm]}; "
+    f"ratios {cf / ct:.2f} and {cw / ct:.2f}"
+)

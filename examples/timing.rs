@@ -2,9 +2,10 @@
 //! streamed through the tiled engine into a null sink, as `denoise` does.
 //! Prints one CSV line: mode,width,height,threads,radius,seconds (min of runs,
 //! or with `REPORT=last` the last run's own time), ns per pixel-offset per
-//! thread. With `SHARE=1` each run also prints to
-//! stderr the share of the workers' time spent in the kernel's blocks
-//! (`StreamReport::kernel_time` over threads x wall time).
+//! thread. With `SHARE=1` each run also prints to stderr its CPU time (the
+//! process's, every thread's: a figure the host's other guests move less
+//! than the wall time) and the share of the workers' time spent in the
+//! kernel's blocks (`StreamReport::kernel_time` over threads x wall time).
 //!
 //! `cargo run --release --example timing -- MODE WIDTH HEIGHT THREADS [RADIUS] [RUNS]`
 //! MODE: `colour` (beauty + variance only), `full` (the default filter with
@@ -81,19 +82,38 @@ fn main() {
     let last = std::env::var("REPORT").is_ok_and(|v| v == "last");
     let mut reported = f64::INFINITY;
     for _ in 0..runs {
+        let cpu0 = process_cpu_seconds();
         let t = Instant::now();
         let mut sink = NullSink::default();
         let report = denoise_stream(&mut FrameSource::new(&frame), &mut sink, &roles, &params, &stream).unwrap();
         let wall = t.elapsed().as_secs_f64();
+        let cpu = process_cpu_seconds() - cpu0;
         reported = if last { wall } else { reported.min(wall) };
         let kernel = report.kernel_time.as_secs_f64();
         if share {
             eprintln!(
-                "run {wall:.3} s, kernel {kernel:.3} s over {threads} threads: {:.3} of the workers' time",
+                "run {wall:.3} s, cpu {cpu:.3} s, kernel {kernel:.3} s over {threads} threads: {:.3} of the workers' time",
                 kernel / (wall * threads as f64)
             );
         }
     }
     let po = (w * h) as f64 * ((2 * radius + 1) * (2 * radius + 1)) as f64;
     println!("{},{w},{h},{threads},{radius},{reported:.3},{:.2}", a[0], reported * 1e9 * threads as f64 / po);
+}
+
+/// The CPU time of every thread of this process so far, in seconds.
+#[cfg(unix)]
+fn process_cpu_seconds() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant
+    // every Linux kernel supports.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime(CLOCK_PROCESS_CPUTIME_ID) failed");
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// Not measured off Unix.
+#[cfg(not(unix))]
+fn process_cpu_seconds() -> f64 {
+    f64::NAN
 }
