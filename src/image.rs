@@ -17,7 +17,7 @@ use crate::geom::Rect;
 /// replaces it, and the kernel flushes that page's TLB entry on every core
 /// running the process, an interrupt to each (docs/performance.md, session
 /// 46). Written here, each page faults once, on the write.
-pub fn written<T: Copy>(value: T, n: usize) -> Vec<T> {
+pub(crate) fn written<T: Copy>(value: T, n: usize) -> Vec<T> {
     let mut v = Vec::with_capacity(n);
     v.resize(n, value);
     v
