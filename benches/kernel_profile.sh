@@ -11,8 +11,8 @@
 #   bash benches/kernel_profile.sh [MODE] [WIDTH] [HEIGHT] [TIMING_BINARY]
 #
 # MODE as examples/timing (colour, layers, features, full, full-var; default
-# colour), RADIUS (default 10) and RUNS (default 1) as its arguments,
-# 960x540 by default, one thread. Needs perf (Debian's linux-perf) and
+# colour), RADIUS (default 10), RUNS (default 1) and THREADS (default 1) as its arguments,
+# 960x540 by default. Needs perf (Debian's linux-perf) and
 # addr2line (binutils). Set LINES=1 to split each function by source line,
 # FOOTPRINT=1 to print also how many 64-byte lines of the wrapper's code
 # hold half, 90 % and 99 % of its samples (its hot code's size).
@@ -27,7 +27,7 @@ fi
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
-perf record -q -e cpu-clock -F 4000 -o "$out/perf.data" "$BIN" "$MODE" "$W" "$H" 1 "${RADIUS:-10}" "${RUNS:-1}" >/dev/null 2>&1
+perf record -q -e cpu-clock -F 4000 -o "$out/perf.data" "$BIN" "$MODE" "$W" "$H" "${THREADS:-1}" "${RADIUS:-10}" "${RUNS:-1}" >/dev/null 2>&1
 perf script -i "$out/perf.data" -F ip,sym,symoff 2>/dev/null \
   | awk '$2 ~ /^nldenoise::filter::.*avx(2|512)[+]0x/ { split($2, a, "[+]0x"); print a[1], a[2] }' \
   | sort | uniq -c > "$out/offsets"
