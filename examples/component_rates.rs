@@ -9,13 +9,17 @@
 //!
 //!   cargo run --release --example component_rates [REPS]
 //!   PRIM=1 cargo run --release --example component_rates
+//!   WIDTH=256 cargo run --release --example component_rates   # rows of 256 samples
 use std::hint::black_box;
 use std::time::Instant;
 
 #[cfg(target_arch = "x86_64")]
 use nldenoise::filter::kernels::{self, GuideRow, ProductLane};
 
-const N: usize = 960;
+/// Samples per row: `WIDTH` (default 960, a block's width at 1080p).
+fn width() -> usize {
+    std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(960)
+}
 
 fn time(name: &str, chunks_per_rep: usize, reps: usize, mut f: impl FnMut()) {
     f();
@@ -65,10 +69,11 @@ fn main() {
     }
     #[cfg(target_arch = "x86_64")]
     unsafe {
-        let chunks = N / 16;
-        let src: Vec<f32> = (0..N + 6).map(|i| ((i * 37) % 101) as f32 * 0.01).collect();
-        let mut ring = vec![0i32; N];
-        let mut run = vec![0i32; N];
+        let n = width();
+        let chunks = n / 16;
+        let src: Vec<f32> = (0..n + 6).map(|i| ((i * 37) % 101) as f32 * 0.01).collect();
+        let mut ring = vec![0i32; n];
+        let mut run = vec![0i32; n];
         time("taps_push F=3 (h1 case), one ring in L1", chunks, reps, || {
             kernels::taps_push_avx512::<3, true, 2>(black_box(&src), &mut ring, &mut run, 1e6)
         });
@@ -78,46 +83,46 @@ fn main() {
         // A full-filter step: 2 jobs x 2 sides x 7 lanes x 2 boxes, each a
         // ring of 7 rows and a running row.
         let boxes = 56;
-        let mut rings: Vec<Vec<i32>> = (0..boxes * 7).map(|_| vec![0i32; N.next_multiple_of(16)]).collect();
-        let mut runs: Vec<Vec<i32>> = (0..boxes).map(|_| vec![0i32; N.next_multiple_of(16)]).collect();
+        let mut rings: Vec<Vec<i32>> = (0..boxes * 7).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
+        let mut runs: Vec<Vec<i32>> = (0..boxes).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
         let mut row = 0usize;
         time("taps_push F=3, 56 boxes' rings in turn (L2)", chunks * boxes, reps / boxes + 1, || {
             row = (row + 1) % 7;
             for b in 0..boxes {
-                let (r, s) = (&mut rings[b * 7 + row][..N], &mut runs[b][..N]);
+                let (r, s) = (&mut rings[b * 7 + row][..n], &mut runs[b][..n]);
                 kernels::taps_push_avx512::<3, false, 2>(black_box(&src), r, s, 1e6);
             }
         });
-        let sums: Vec<i32> = (0..N).map(|i| -(((i * 7919) % 100_000) as i32)).collect();
-        let tf: Vec<f32> = (0..N).map(|i| -(((i * 31) % 97) as f32) * 0.1).collect();
-        let mut dst = vec![0f32; N];
+        let sums: Vec<i32> = (0..n).map(|i| -(((i * 7919) % 100_000) as i32)).collect();
+        let tf: Vec<f32> = (0..n).map(|i| -(((i * 31) % 97) as f32) * 0.1).collect();
+        let mut dst = vec![0f32; n];
         time("weights_avx512 guided", chunks, reps, || {
             kernels::weights_avx512::<true>(black_box(&sums), &tf, &mut dst, -1e-4, 10)
         });
         let rows: [Vec<f32>; 12] =
-            std::array::from_fn(|c| (0..N + 8).map(|i| ((i * (c + 3)) % 53) as f32 * 0.02).collect());
-        let (mut d, mut m) = (vec![0f32; N], vec![0f32; N]);
+            std::array::from_fn(|c| (0..n + 8).map(|i| ((i * (c + 3)) % 53) as f32 * 0.02).collect());
+        let (mut d, mut m) = (vec![0f32; n], vec![0f32; n]);
         time("colour_distance_pair_rgb (pair: 2 offsets)", chunks, reps, || distance(&mut d, &mut m, &rows));
         let halves: Vec<Vec<half::f16>> = (0..14)
-            .map(|c| (0..N + 8).map(|i| half::f16::from_f32(((i * (c + 5)) % 61) as f32 / 61.0)).collect())
+            .map(|c| (0..n + 8).map(|i| half::f16::from_f32(((i * (c + 5)) % 61) as f32 / 61.0)).collect())
             .collect();
-        let fp: Vec<GuideRow> = (0..7).map(|c| GuideRow::Half(&halves[c][..N])).collect();
-        let fq: Vec<GuideRow> = (0..7).map(|c| GuideRow::Half(&halves[7 + c][1..N + 1])).collect();
-        let inv: Vec<Vec<f32>> = (0..3).map(|g| vec![-0.5 - g as f32; N]).collect();
-        let (mut o1, mut o2) = (vec![0f32; N], vec![0f32; N]);
+        let fp: Vec<GuideRow> = (0..7).map(|c| GuideRow::Half(&halves[c][..n])).collect();
+        let fq: Vec<GuideRow> = (0..7).map(|c| GuideRow::Half(&halves[7 + c][1..n + 1])).collect();
+        let inv: Vec<Vec<f32>> = (0..3).map(|g| vec![-0.5 - g as f32; n]).collect();
+        let (mut o1, mut o2) = (vec![0f32; n], vec![0f32; n]);
         time("guide_pair_products (3,3,1) half, 2 lanes", chunks, reps, || {
             let lanes = [
                 Some(ProductLane { from: 0, out: &mut o1[..], inv: [&inv[0], &inv[1], &inv[2], &inv[0]] }),
                 Some(ProductLane { from: 0, out: &mut o2[..], inv: [&inv[0], &inv[1], &inv[2], &inv[0]] }),
             ];
-            kernels::guide_pair_products_avx512(N, (&fp, &fq), &[3, 6, 7], lanes)
+            kernels::guide_pair_products_avx512(n, (&fp, &fq), &[3, 6, 7], lanes)
         });
         black_box((&ring, &run, &dst, &d, &m, &o1, &o2));
-        let s2: Vec<f32> = (0..N + 64).map(|i| ((i * 37) % 101) as f32 * 0.01).collect();
-        let mut outbuf = vec![0f32; N + 16];
+        let s2: Vec<f32> = (0..n + 64).map(|i| ((i * 37) % 101) as f32 * 0.01).collect();
+        let mut outbuf = vec![0f32; n + 16];
         let off = outbuf.as_ptr().align_offset(64);
-        let mut out = vec![0f32; N];
-        let out_al = &mut outbuf[off..off + N];
+        let mut out = vec![0f32; n];
+        let out_al = &mut outbuf[off..off + n];
         time("taps: 4 shuffles (the kernel's form)", chunks, reps, || taps_variants::shuffles(black_box(&s2), out_al));
         out.copy_from_slice(out_al);
         let a = out.clone();
