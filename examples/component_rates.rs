@@ -16,9 +16,10 @@ use std::time::Instant;
 #[cfg(target_arch = "x86_64")]
 use nldenoise::filter::kernels::{self, GuideRow, ProductLane};
 
-/// Samples per row: `WIDTH` (default 960, a block's width at 1080p).
+/// Samples per row: `WIDTH` (default 960, a block's width at 1080p; at
+/// least 64, the guides' kernel's chunk).
 fn width() -> usize {
-    std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(960)
+    std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(960).max(64)
 }
 
 fn time(name: &str, chunks_per_rep: usize, reps: usize, mut f: impl FnMut()) {
@@ -48,8 +49,12 @@ fn distance(d: &mut [f32], m: &mut [f32], rows: &[Vec<f32>; 12]) {
 fn main() {
     let reps: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(20_000);
     #[cfg(target_arch = "x86_64")]
-    if !is_x86_feature_detected!("avx512f") {
-        println!("this CPU has no AVX-512: nothing to measure");
+    if !(is_x86_feature_detected!("avx512f")
+        && is_x86_feature_detected!("avx2")
+        && is_x86_feature_detected!("fma")
+        && is_x86_feature_detected!("f16c"))
+    {
+        println!("this CPU lacks AVX-512 (or AVX2, FMA, F16C): nothing to measure");
         return;
     }
     #[cfg(target_arch = "x86_64")]
@@ -59,6 +64,7 @@ fn main() {
             let mut best = f64::MAX;
             for _ in 0..3 {
                 let t = Instant::now();
+                // SAFETY: the CPU has avx512f, f16c and fma (checked above).
                 black_box(unsafe { f(black_box(reps)) });
                 best = best.min(t.elapsed().as_secs_f64());
             }
@@ -68,6 +74,8 @@ fn main() {
         return;
     }
     #[cfg(target_arch = "x86_64")]
+    // SAFETY: the kernels and variants called below need avx512f (and the
+    // distance's wrapper avx2, fma and f16c), checked above.
     unsafe {
         let n = width();
         let chunks = n / 16;
@@ -86,7 +94,7 @@ fn main() {
         let mut rings: Vec<Vec<i32>> = (0..boxes * 7).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
         let mut runs: Vec<Vec<i32>> = (0..boxes).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
         let mut row = 0usize;
-        time("taps_push F=3, 56 boxes' rings in turn (L2)", chunks * boxes, reps / boxes + 1, || {
+        time("taps_push F=3, 56 boxes' rings in turn (1.7 MiB)", chunks * boxes, reps / boxes + 1, || {
             row = (row + 1) % 7;
             for b in 0..boxes {
                 let (r, s) = (&mut rings[b * 7 + row][..n], &mut runs[b][..n]);
