@@ -94,7 +94,7 @@ fn main() {
         let mut rings: Vec<Vec<i32>> = (0..boxes * 7).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
         let mut runs: Vec<Vec<i32>> = (0..boxes).map(|_| vec![0i32; n.next_multiple_of(16)]).collect();
         let mut row = 0usize;
-        time("taps_push F=3, 56 boxes' rings in turn (1.7 MiB)", chunks * boxes, reps / boxes + 1, || {
+        time("taps_push F=3, 56 boxes' rings in turn (1.6 MiB)", chunks * boxes, reps / boxes + 1, || {
             row = (row + 1) % 7;
             for b in 0..boxes {
                 let (r, s) = (&mut rings[b * 7 + row][..n], &mut runs[b][..n]);
@@ -196,16 +196,14 @@ mod taps_variants {
         }
     }
 
-    /// Pair sums in registers by one shuffle, `p[i + 2]`, `p[i + 4]` by
-    /// shuffles, `s[i + 6]` by an unaligned load.
+    /// The pair sums from two unaligned loads, `p[i + 2]` and `p[i + 4]`
+    /// by two shuffles, `s[i + 6]` by an unaligned load.
     #[target_feature(enable = "avx512f")]
     pub(crate) fn mixed(s: &[f32], out: &mut [f32]) {
         let n = out.len();
         assert!(s.len() >= n + 48);
         unsafe {
-            let x1 = ld(s, 16);
             let mut p0 = _mm512_add_ps(ld(s, 0), ld(s, 1));
-            let _ = x1;
             let mut i = 0;
             while i + 16 <= n {
                 let p1 = _mm512_add_ps(ld(s, i + 16), ld(s, i + 17));
