@@ -655,58 +655,122 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                         if !in_rows(side.a_y, yl) {
                             continue;
                         }
-                        // Where every lane's window is whole (no column of the row
-                        // clipped), the mean weights are the box's row of sums,
-                        // read by the accumulation; else each lane's are formed
-                        // and scaled in `mean_w`. The same sums.
-                        let direct = side.lanes.iter().all(|l| {
-                            l.acc.x0 >= l.valid.x0 + f
-                                && l.acc.x1 <= l.valid.x1 - f
-                                && yl - f >= l.valid.y0
-                                && yl + f < l.valid.y1
-                        });
-                        if !direct {
-                            for (g, lane) in side.lanes.iter().enumerate() {
-                                let buf = &mut bufs[lane_buf(j, si, g)];
-                                let aw = lane.acc.width();
-                                // Mean weights times the full window's count: numerators
-                                // and denominator share the factor, and it is exactly 1
-                                // where the window is not clipped (no multiply there).
-                                let mw = &mut buf.mean_w[..aw];
-                                let ny = buf.h2.sums(side.w_y.0, yl, lane.valid, f, mw);
-                                scale_by_count(mw, lane.acc.x0, lane.valid, f, ny, ((2 * f + 1) * (2 * f + 1)) as f32);
-                            }
-                        }
-                        let (lanes, at) = (side.lanes, (yl, side.dy, block));
-                        let buf = |g: usize| &bufs[lane_buf(j, si, g)];
-                        if direct {
-                            // The box's integer sums, read as `f32` by the accumulation.
-                            let rows = lane_rows(lanes, |g, l| {
-                                buf(g).h2.whole(yl, l.valid, f, l.acc.width()).expect("a whole window")
-                            });
-                            accumulate::<W, AVX512, i32>(
-                                &mut num[j],
-                                &mut den[j],
-                                &job.values,
-                                &rows[..lanes.len()],
-                                at,
-                            );
-                        } else {
-                            let rows = lane_rows(lanes, |g, l| &buf(g).mean_w[..l.acc.width()]);
-                            accumulate::<W, AVX512, f32>(
-                                &mut num[j],
-                                &mut den[j],
-                                &job.values,
-                                &rows[..lanes.len()],
-                                at,
-                            );
-                        }
+                        let rows = AccRows { j, si, yl, f, block };
+                        accumulate_side::<W, AVX512>(job, &mut num[j], &mut den[j], side, bufs, rows);
                     }
                 }
             }
         }
     }
     debug_assert!(next_w == w_rows.1 && next_a == a_rows.1);
+}
+
+/// Where [`accumulate_side`] reads a side's mean weights: job `j`, side
+/// `si`, the lanes' row `yl`, the patch radius and the block.
+#[derive(Clone, Copy)]
+struct AccRows {
+    j: usize,
+    si: usize,
+    yl: i64,
+    f: i64,
+    block: Rect,
+}
+
+/// Pass 3 of one side's lanes on row `yl`: their mean weights accumulated
+/// into job `j`'s numerators and denominator.
+///
+/// Where every lane's window is whole (no column of the row clipped), the
+/// mean weights are the weights' box's row of integer sums, which the
+/// accumulation reads and converts. In a row whose windows are whole
+/// vertically but clipped at the frame's left or right side (every row of
+/// a block at the frame's side), only the columns near the clipped ones
+/// take each lane's mean weights formed and scaled in `mean_w`; the columns
+/// between read the box's sums as the whole rows do.
+/// Elsewhere (the frame's first and last rows) every column goes through
+/// `mean_w`. A pixel takes its lanes' terms in lane order in every case,
+/// and a whole column's mean weight is its integer sum converted (times a
+/// factor of exactly 1, skipped), so the bits are the same whichever part
+/// of a row a pixel falls in.
+#[inline(always)]
+fn accumulate_side<const W: usize, const AVX512: bool>(
+    job: &Job<'_>,
+    num: &mut [Aligned],
+    den: &mut [f32],
+    side: &Side<'_>,
+    bufs: &mut [LaneBuffers],
+    AccRows { j, si, yl, f, block }: AccRows,
+) {
+    let lanes = side.lanes;
+    let at = (yl, side.dy, block);
+    let k = ((2 * f + 1) * (2 * f + 1)) as f32;
+    let vertical = lanes.iter().all(|l| yl - f >= l.valid.y0 && yl + f < l.valid.y1);
+    let horizontal = lanes.iter().all(|l| l.acc.x0 >= l.valid.x0 + f && l.acc.x1 <= l.valid.x1 - f);
+    if vertical && horizontal {
+        // The box's integer sums, read as `f32` by the accumulation.
+        let rows = lane_rows(lanes, |g, l| {
+            bufs[lane_buf(j, si, g)].h2.whole(yl, l.valid, f, l.acc.width()).expect("a whole window")
+        });
+        accumulate::<W, AVX512, i32>(num, den, &job.values, &rows[..lanes.len()], at);
+        return;
+    }
+    // The columns every lane covers, `[c0, c1)` (the accumulation's
+    // vector path), and among them those where every lane's window is
+    // whole, `[lo, hi)`; the split points `e0` and `e1` lie whole 16-sample
+    // chunks from `c0`, so that the three parts' vector loops have no
+    // scalar ends but the last part's, as the row's single call had.
+    let (c0, c1) = lanes.iter().fold((i64::MIN, i64::MAX), |(a, b), l| (a.max(l.acc.x0), b.min(l.acc.x1)));
+    let (lo, hi) = lanes.iter().fold((c0, c1), |(lo, hi), l| (lo.max(l.valid.x0 + f), hi.min(l.valid.x1 - f)));
+    let e0 = c0 + (lo - c0 + 15) / 16 * 16;
+    let e1 = e0 + (hi - e0).max(0) / 16 * 16;
+    let split = vertical && e1 > e0;
+    // Each lane's mean weights where they are formed: the columns before
+    // `e0` and from `e1` (every column without the split).
+    let formed = |l: &Lane| {
+        let aw = l.acc.width();
+        if split { ((e0 - l.acc.x0) as usize, (e1 - l.acc.x0) as usize, aw) } else { (aw, aw, aw) }
+    };
+    for (g, lane) in lanes.iter().enumerate() {
+        let LaneBuffers { h2, mean_w, .. } = &mut bufs[lane_buf(j, si, g)];
+        let (a, b, aw) = formed(lane);
+        // Mean weights times the full window's count: numerators and
+        // denominator share the factor, and it is exactly 1 where the
+        // window is not clipped (no multiply there).
+        let mw = &mut mean_w[..aw];
+        let ny = h2.sums(side.w_y.0, yl, lane.valid, f, &mut mw[..a]);
+        scale_by_count(&mut mw[..a], lane.acc.x0, lane.valid, f, ny, k);
+        if b < aw {
+            let sums = h2.whole(yl, lane.valid, f, aw).expect("whole vertically");
+            for (o, s) in mw[b..].iter_mut().zip(&sums[b..]) {
+                *o = *s as f32;
+            }
+            scale_by_count(&mut mw[b..], lane.acc.x0 + b as i64, lane.valid, f, ny, k);
+        }
+    }
+    let bufs = &*bufs;
+    let buf = |g: usize| &bufs[lane_buf(j, si, g)];
+    let part = |x0: i64, x1: i64| {
+        let mut rows = [LaneRow { w: &[][..], x0: 0, dx: 0 }; GROUP_MAX];
+        for (g, (l, row)) in lanes.iter().zip(rows.iter_mut()).enumerate() {
+            let (a, b) = ((x0.max(l.acc.x0) - l.acc.x0) as usize, (x1.min(l.acc.x1) - l.acc.x0) as usize);
+            *row = LaneRow { w: &buf(g).mean_w[a..b.max(a)], x0: x0.max(l.acc.x0), dx: l.dx };
+        }
+        rows
+    };
+    if !split {
+        let rows = part(block.x0, block.x1);
+        accumulate::<W, AVX512, f32>(num, den, &job.values, &rows[..lanes.len()], at);
+        return;
+    }
+    let left = part(block.x0, e0);
+    accumulate::<W, AVX512, f32>(num, den, &job.values, &left[..lanes.len()], at);
+    let mut whole = [LaneRow { w: &[][..], x0: 0, dx: 0 }; GROUP_MAX];
+    for (g, (l, row)) in lanes.iter().zip(whole.iter_mut()).enumerate() {
+        let sums = buf(g).h2.whole(yl, l.valid, f, l.acc.width()).expect("whole vertically");
+        *row = LaneRow { w: &sums[(e0 - l.acc.x0) as usize..(e1 - l.acc.x0) as usize], x0: e0, dx: l.dx };
+    }
+    accumulate::<W, AVX512, i32>(num, den, &job.values, &whole[..lanes.len()], at);
+    let right = part(e1, block.x1);
+    accumulate::<W, AVX512, f32>(num, den, &job.values, &right[..lanes.len()], at);
 }
 
 /// The distances of row `y`, columns `x`, for offset `(dx, dy)` into `d` and
