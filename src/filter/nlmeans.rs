@@ -684,13 +684,16 @@ struct AccRows {
 /// accumulation reads and converts. In a row whose windows are whole
 /// vertically but clipped at the frame's left or right side (every row of
 /// a block at the frame's side), only the columns near the clipped ones
-/// take each lane's mean weights formed and scaled in `mean_w`; the columns
-/// between read the box's sums as the whole rows do.
-/// Elsewhere (the frame's first and last rows) every column goes through
-/// `mean_w`. A pixel takes its lanes' terms in lane order in every case,
-/// and a whole column's mean weight is its integer sum converted (times a
-/// factor of exactly 1, skipped), so the bits are the same whichever part
-/// of a row a pixel falls in.
+/// take each lane's mean weights formed and scaled in `mean_w`; the
+/// columns between, where every lane's window is whole, read the box's
+/// sums as a whole row does (docs/performance.md, session 48: 0.98x the
+/// filter's time at 1080p, where every block touches a side). In the rest
+/// (rows within `f` of the frame's top or bottom, or too narrow a span of
+/// whole windows) every column goes through `mean_w`. A pixel takes its
+/// lanes' terms in lane order in every case, and a whole column's mean
+/// weight is its integer sum converted (times a factor of exactly 1,
+/// skipped), so the bits are the same whichever part of a row a pixel
+/// falls in.
 #[inline(always)]
 fn accumulate_side<const W: usize, const AVX512: bool>(
     job: &Job<'_>,
