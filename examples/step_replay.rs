@@ -8,8 +8,8 @@
 //! depth as half floats); then, job by job, fourteen lanes' weights (`w`,
 //! guided with `GUIDES=1`) and pushes into the weight boxes (`q`), and both
 //! sides' accumulation of seven lanes into the job's numerators and
-//! denominator (`a`, a copy of the kernel's private
-//! `fused_rgb_shifted_avx512`; `A` instead: the path of a row with a
+//! denominator (`a`, the kernel's `kernels::fused_rgb_shifted_avx512`;
+//! `A` instead: the path of a row with a
 //! clipped window, each lane's integer sums converted into a row of `f32`
 //! first). `JOBS` (default 1) is 1 for colour-only, 2 for the full filter.
 //!
@@ -284,7 +284,14 @@ fn run(stages: &str, reps: usize) -> f64 {
                     let w: [&[f32]; G] = std::array::from_fn(|g| &mean_w[side * G + g][..]);
                     let [d, n0, n1, n2] = &mut num[..] else { unreachable!() };
                     let y = ya(side);
-                    accumulate(&mut d[y], [&mut n0[y], &mut n1[y], &mut n2[y]], w, vals(side));
+                    // SAFETY: avx512f and fma (this function's target features).
+                    unsafe {
+                        kernels::fused_rgb_shifted_avx512::<G, false, _>(
+                            [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
+                            w,
+                            vals(side),
+                        )
+                    };
                 }
             }
             if on('a') {
@@ -292,7 +299,14 @@ fn run(stages: &str, reps: usize) -> f64 {
                     let w: [&[i32]; G] = std::array::from_fn(|g| &h2[side * G + g].run[..]);
                     let [d, n0, n1, n2] = &mut num[..] else { unreachable!() };
                     let y = ya(side);
-                    accumulate(&mut d[y], [&mut n0[y], &mut n1[y], &mut n2[y]], w, vals(side));
+                    // SAFETY: avx512f and fma (this function's target features).
+                    unsafe {
+                        kernels::fused_rgb_shifted_avx512::<G, false, _>(
+                            [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
+                            w,
+                            vals(side),
+                        )
+                    };
                 }
             }
         }
@@ -313,53 +327,4 @@ fn run(stages: &str, reps: usize) -> f64 {
     black_box(&jobs);
     // Pixel-offsets: every row's fourteen lanes of `n` pixels.
     best * 1e9 / (reps * rows * 2 * G * n) as f64
-}
-
-/// The kernel's `fused_rgb_shifted_avx512` for seven lanes of consecutive
-/// `dx` (a copy: the kernel's is private): each lane's integer mean
-/// weights times the values at its offset, added to the numerators, and the
-/// weights to the denominator.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-fn accumulate<T: Copy>(d: &mut [f32], [n0, n1, n2]: [&mut [f32]; 3], w: [&[T]; G], rows: [&[f32]; 3]) {
-    use std::arch::x86_64::*;
-    let n = d.len();
-    assert!(n0.len() >= n && n1.len() >= n && n2.len() >= n && w.iter().all(|r| r.len() >= n));
-    assert!(rows.iter().all(|r| r.len() >= n + 32));
-    macro_rules! sh {
-        ($k:literal, $a:expr, $b:expr) => {
-            _mm512_castsi512_ps(_mm512_alignr_epi32::<$k>(_mm512_castps_si512($b), _mm512_castps_si512($a)))
-        };
-    }
-    for c in 0..n / 16 {
-        let i = c * 16;
-        // SAFETY: `i + 32 <= n + 16`, inside every row (asserted above).
-        unsafe {
-            let mut v = [[_mm512_setzero_ps(); G]; 3];
-            for (vc, row) in v.iter_mut().zip(rows) {
-                let (a, b) = (_mm512_loadu_ps(row.as_ptr().add(i)), _mm512_loadu_ps(row.as_ptr().add(i + 16)));
-                *vc = [a, sh!(1, a, b), sh!(2, a, b), sh!(3, a, b), sh!(4, a, b), sh!(5, a, b), sh!(6, a, b)];
-            }
-            let mut dd = _mm512_loadu_ps(d.as_ptr().add(i));
-            let mut a0 = _mm512_loadu_ps(n0.as_ptr().add(i));
-            let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
-            let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
-            for g in 0..G {
-                let at = w[g].as_ptr().add(i);
-                let wg = if size_of::<T>() == 4 && std::any::type_name::<T>() == "i32" {
-                    _mm512_cvtepi32_ps(_mm512_loadu_si512(at.cast()))
-                } else {
-                    _mm512_loadu_ps(at.cast())
-                };
-                dd = _mm512_add_ps(dd, wg);
-                a0 = _mm512_fmadd_ps(wg, v[0][g], a0);
-                a1 = _mm512_fmadd_ps(wg, v[1][g], a1);
-                a2 = _mm512_fmadd_ps(wg, v[2][g], a2);
-            }
-            _mm512_storeu_ps(d.as_mut_ptr().add(i), dd);
-            _mm512_storeu_ps(n0.as_mut_ptr().add(i), a0);
-            _mm512_storeu_ps(n1.as_mut_ptr().add(i), a1);
-            _mm512_storeu_ps(n2.as_mut_ptr().add(i), a2);
-        }
-    }
 }

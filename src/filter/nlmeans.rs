@@ -10,16 +10,16 @@ use rayon::prelude::*;
 
 use super::column_sums::{ColumnBox, Quantiser};
 use super::kernels::{
-    CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, accumulate_colour_distance_pair, chunk, chunk_count, chunk_i32,
-    chunk_mut, chunk_of, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes, feature_square_sum,
-    feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any, lanes2,
-    log2_distance_scale, rows_sum,
+    CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, WeightSample, accumulate_colour_distance_pair, chunk, chunk_count,
+    chunk_i32, chunk_mut, chunk_of, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes,
+    feature_square_sum, feature_square_sum_any, fold_feature_products, fold_feature_term, fold_feature_term_any,
+    lanes2, log2_distance_scale, rows_sum,
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
     GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, VarianceLane, feature_square_sum_half_avx2,
-    feature_square_sum_half_avx512, guide_pair_products_avx512, guide_variance_pair_avx512, weights_avx512,
-    weights_factors_avx512,
+    feature_square_sum_half_avx512, fused_rgb_shifted_avx512, guide_pair_products_avx512, guide_variance_pair_avx512,
+    weights_avx512, weights_factors_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -987,32 +987,6 @@ fn lane_rows<'a, T: Copy>(lanes: &[Lane], w: impl Fn(usize, &Lane) -> &'a [T]) -
     rows
 }
 
-/// A mean weight as the accumulation reads it: an `f32`, or a whole
-/// window's integer sum from the weights' box, converted as it is read
-/// (`f32(R)`, the same value a stored copy would hold).
-trait WeightSample: Copy {
-    /// Whether the samples are the box's `i32` sums.
-    const INT: bool;
-    /// The sample's value.
-    fn value(self) -> f32;
-}
-
-impl WeightSample for f32 {
-    const INT: bool = false;
-    #[inline(always)]
-    fn value(self) -> f32 {
-        self
-    }
-}
-
-impl WeightSample for i32 {
-    const INT: bool = true;
-    #[inline(always)]
-    fn value(self) -> f32 {
-        self as f32
-    }
-}
-
 /// Horizontal window sums of one row: `dst[x] = sum of src over
 /// [x - f, x + f] ∩ clip` for `x` from `dst_x0`. A whole window (f <= 4)
 /// adds the pair sums of columns `(x - f, x - f + 1), (x - f + 2, x - f + 3), ...`
@@ -1401,94 +1375,6 @@ fn consecutive_dx<T>(rows: &[LaneRow<'_, T>]) -> Option<(i64, bool)> {
         return None;
     }
     Some((rows.iter().map(|r| r.dx).min()?, s == -1))
-}
-
-/// [`fused_rgb`] for `G <= 7` lanes of consecutive `dx` on the AVX-512 tier:
-/// `rows[c]` is channel `c`'s row from the smallest `dx` (`len + G - 1`
-/// samples), lane `g` reads it from offset `g` (or `G - 1 - g` with `REV`).
-/// Each vector of a lane is formed from the row's two vectors at the
-/// sample (`valignd`) instead of a load of its own: unaligned 64-byte loads
-/// split across cache lines, and the lanes' seven of them per channel cost
-/// the accumulation 5-7 % of the filter's time (docs/performance.md,
-/// session 21). Every sample gets [`fused_rgb`]'s operations in its order
-/// (the lanes' terms in lane order, one fused multiply-add each), so the
-/// same bits; the samples after the last whole vector as `fused_rgb`'s rest.
-///
-/// # Safety
-/// The CPU must support AVX-512F and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-#[allow(clippy::needless_range_loop)]
-unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: WeightSample>(
-    [d, n0, n1, n2]: [&mut [f32]; 4],
-    w: [&[T]; G],
-    rows: [&[f32]; 3],
-) {
-    use std::arch::x86_64::*;
-    const { assert!(G >= 1 && G <= 7) };
-    let n = d.len();
-    let len = n + G - 1;
-    let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
-    let rows = cut(rows, len);
-    let w = cut(w, n);
-    let off = |g: usize| if REV { G - 1 - g } else { g };
-    // Lane `j` of `sh!(k, a, b)` is `a[j + k]`, or `b[j + k - 16]`.
-    macro_rules! sh {
-        ($k:literal, $a:expr, $b:expr) => {
-            _mm512_castsi512_ps(_mm512_alignr_epi32::<$k>(_mm512_castps_si512($b), _mm512_castps_si512($a)))
-        };
-    }
-    for c in 0..n / 16 {
-        let i = c * 16;
-        // Samples `i + 16..` of a row: the first `G - 1` always exist
-        // (`i + 16 <= n`); lanes past the row's end are masked off, never read.
-        let rest = len - (i + 16);
-        let k: __mmask16 = if rest >= 16 { 0xFFFF } else { (1u16 << rest) - 1 };
-        let mut v = [[_mm512_setzero_ps(); 7]; 3];
-        for (vc, row) in v.iter_mut().zip(rows) {
-            // SAFETY: `i + 16 <= n <= len`, and the mask keeps the second
-            // load inside the row.
-            let (a, b) = unsafe {
-                (_mm512_loadu_ps(row.as_ptr().add(i)), _mm512_maskz_loadu_ps(k, row.as_ptr().wrapping_add(i + 16)))
-            };
-            *vc = [a, sh!(1, a, b), sh!(2, a, b), sh!(3, a, b), sh!(4, a, b), sh!(5, a, b), sh!(6, a, b)];
-        }
-        // SAFETY (every load and store below): `i + 16 <= n`, the length of
-        // each of these rows.
-        unsafe {
-            let mut dd = _mm512_loadu_ps(d.as_ptr().add(i));
-            let mut a0 = _mm512_loadu_ps(n0.as_ptr().add(i));
-            let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
-            let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
-            for g in 0..G {
-                let at = w[g].as_ptr().add(i);
-                // An integer sum converts as `value` does (`f32(R)`, rounded to nearest).
-                let wg =
-                    if T::INT { _mm512_cvtepi32_ps(_mm512_loadu_si512(at.cast())) } else { _mm512_loadu_ps(at.cast()) };
-                let o = off(g);
-                dd = _mm512_add_ps(dd, wg);
-                a0 = _mm512_fmadd_ps(wg, v[0][o], a0);
-                a1 = _mm512_fmadd_ps(wg, v[1][o], a1);
-                a2 = _mm512_fmadd_ps(wg, v[2][o], a2);
-            }
-            _mm512_storeu_ps(d.as_mut_ptr().add(i), dd);
-            _mm512_storeu_ps(n0.as_mut_ptr().add(i), a0);
-            _mm512_storeu_ps(n1.as_mut_ptr().add(i), a1);
-            _mm512_storeu_ps(n2.as_mut_ptr().add(i), a2);
-        }
-    }
-    for i in n / 16 * 16..n {
-        let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
-        for g in 0..G {
-            let wg = w[g][i].value();
-            let o = off(g);
-            dd += wg;
-            a0 = wg.mul_add(rows[0][i + o], a0);
-            a1 = wg.mul_add(rows[1][i + o], a1);
-            a2 = wg.mul_add(rows[2][i + o], a2);
-        }
-        (d[i], n0[i], n1[i], n2[i]) = (dd, a0, a1, a2);
-    }
 }
 
 /// Row `y` of `plane` over columns `c0..c1` shifted by each lane's `dx`.
