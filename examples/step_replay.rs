@@ -286,10 +286,11 @@ fn run(stages: &str, reps: usize) -> f64 {
                     let y = ya(side);
                     // SAFETY: avx512f and fma (this function's target features).
                     unsafe {
-                        kernels::fused_rgb_shifted_avx512::<G, false, _>(
+                        kernels::fused_rgb_shifted_avx512::<G, false, false, _>(
                             [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
                             w,
                             vals(side),
+                            kernels::SideFactors::NONE,
                         )
                     };
                 }
@@ -301,10 +302,11 @@ fn run(stages: &str, reps: usize) -> f64 {
                     let y = ya(side);
                     // SAFETY: avx512f and fma (this function's target features).
                     unsafe {
-                        kernels::fused_rgb_shifted_avx512::<G, false, _>(
+                        kernels::fused_rgb_shifted_avx512::<G, false, false, _>(
                             [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
                             w,
                             vals(side),
+                            kernels::SideFactors::NONE,
                         )
                     };
                 }

@@ -1501,6 +1501,94 @@ impl WeightSample for i32 {
     }
 }
 
+/// One lane of [`edge_columns_avx512`]: it covers the columns `lo..hi` of
+/// the call's span, and its mean weights, their factors and its three
+/// channels' values are given over those columns only.
+#[derive(Clone, Copy)]
+pub struct EdgeLane<'a, T> {
+    /// The first column covered (from the span's start).
+    pub lo: usize,
+    /// One past the last.
+    pub hi: usize,
+    /// The lane's mean weights over `lo..hi`.
+    pub w: &'a [T],
+    /// Their factors (see [`SideFactors`]).
+    pub fac: &'a [f32],
+    /// Its three channels' values over `lo..hi`.
+    pub values: [&'a [f32]; 3],
+}
+
+/// The accumulation's columns next to the frame's side that only some
+/// lanes cover (at most 16, `d.len()`), in one masked vector: each lane's
+/// term `w fac` is added to the denominator and `w fac v_c` to numerator
+/// `c` in the columns it covers, lanes in order, one add or fused
+/// multiply-add each (the scalar loop's operations: the same bits); the
+/// other columns keep their sums exactly (masked operations).
+///
+/// # Safety
+/// The CPU must support AVX-512F and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+pub unsafe fn edge_columns_avx512<T: WeightSample>([d, n0, n1, n2]: [&mut [f32]; 4], lanes: &[EdgeLane<'_, T>]) {
+    use std::arch::x86_64::*;
+    let n = d.len();
+    assert!(n <= 16 && n0.len() == n && n1.len() == n && n2.len() == n, "at most 16 columns");
+    let bits = |a: usize, b: usize| ((((1u32 << b) - 1) & !((1u32 << a) - 1)) & 0xFFFF) as __mmask16;
+    let all = bits(0, n);
+    // SAFETY (every load and store): a masked lane is never read or
+    // written; the others lie inside their slice (`lo..hi` of the span is
+    // the slice's `0..hi - lo`, asserted below), the pointers to a slice's
+    // lane 0 formed with `wrapping_sub`.
+    unsafe {
+        let (mut dd, mut a0, mut a1, mut a2) = (
+            _mm512_maskz_loadu_ps(all, d.as_ptr()),
+            _mm512_maskz_loadu_ps(all, n0.as_ptr()),
+            _mm512_maskz_loadu_ps(all, n1.as_ptr()),
+            _mm512_maskz_loadu_ps(all, n2.as_ptr()),
+        );
+        for l in lanes {
+            let m = l.hi.saturating_sub(l.lo);
+            assert!(l.hi <= n && l.w.len() >= m && l.fac.len() >= m && l.values.iter().all(|v| v.len() >= m));
+            if m == 0 {
+                continue;
+            }
+            let k = bits(l.lo, l.hi);
+            let at = |p: *const f32| p.wrapping_sub(l.lo);
+            let w = l.w.as_ptr().wrapping_sub(l.lo);
+            let wg = if T::INT {
+                _mm512_cvtepi32_ps(_mm512_maskz_loadu_epi32(k, w.cast()))
+            } else {
+                _mm512_maskz_loadu_ps(k, w.cast())
+            };
+            let wg = _mm512_mul_ps(wg, _mm512_maskz_loadu_ps(k, at(l.fac.as_ptr())));
+            dd = _mm512_mask_add_ps(dd, k, dd, wg);
+            a0 = _mm512_mask3_fmadd_ps(wg, _mm512_maskz_loadu_ps(k, at(l.values[0].as_ptr())), a0, k);
+            a1 = _mm512_mask3_fmadd_ps(wg, _mm512_maskz_loadu_ps(k, at(l.values[1].as_ptr())), a1, k);
+            a2 = _mm512_mask3_fmadd_ps(wg, _mm512_maskz_loadu_ps(k, at(l.values[2].as_ptr())), a2, k);
+        }
+        _mm512_mask_storeu_ps(d.as_mut_ptr(), all, dd);
+        _mm512_mask_storeu_ps(n0.as_mut_ptr(), all, a0);
+        _mm512_mask_storeu_ps(n1.as_mut_ptr(), all, a1);
+        _mm512_mask_storeu_ps(n2.as_mut_ptr(), all, a2);
+    }
+}
+
+/// The factors of [`fused_rgb_shifted_avx512`]'s mean weights in a row
+/// clipped at the frame's left or right side.
+#[derive(Clone, Copy)]
+pub struct SideFactors<'a, const G: usize> {
+    /// Each lane's factor for each of its samples (indexed as its weights).
+    pub fac: [&'a [f32]; G],
+    /// The vectors `whole.0..whole.1` (16 samples each, from the first)
+    /// whose every factor is 1: read without a multiply.
+    pub whole: (usize, usize),
+}
+
+impl<const G: usize> SideFactors<'_, G> {
+    /// No factors (for a call without `SCALED`).
+    pub const NONE: Self = SideFactors { fac: [&[]; G], whole: (0, 0) };
+}
+
 /// The block kernel's fused accumulation (`nlmeans::fused_rgb`) for `G <= 7` lanes of consecutive `dx` on the AVX-512 tier:
 /// `rows[c]` is channel `c`'s row from the smallest `dx` (`len + G - 1`
 /// samples), lane `g` reads it from offset `g` (or `G - 1 - g` with `REV`).
@@ -1512,17 +1600,20 @@ impl WeightSample for i32 {
 /// (the lanes' terms in lane order, one fused multiply-add each), so the
 /// same bits; the samples after the last whole vector as `fused_rgb`'s rest.
 /// Each lane's mean weights are `f32`, or the weights' box's integer sums
-/// (`i32`, converted as they are read).
+/// (`i32`, converted as they are read). With `SCALED`, each mean weight
+/// outside `scale`'s whole vectors is multiplied by its factor as it is
+/// read (a clipped window's `k / (nx ny)`, or exactly 1).
 ///
 /// # Safety
 /// The CPU must support AVX-512F and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::needless_range_loop)]
-pub unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: WeightSample>(
+pub unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, const SCALED: bool, T: WeightSample>(
     [d, n0, n1, n2]: [&mut [f32]; 4],
     w: [&[T]; G],
     rows: [&[f32]; 3],
+    scale: SideFactors<'_, G>,
 ) {
     use std::arch::x86_64::*;
     const { assert!(G >= 1 && G <= 7) };
@@ -1531,6 +1622,7 @@ pub unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: Weigh
     let (n0, n1, n2) = (&mut n0[..n], &mut n1[..n], &mut n2[..n]);
     let rows = cut(rows, len);
     let w = cut(w, n);
+    let fac = if SCALED { cut(scale.fac, n) } else { scale.fac };
     let off = |g: usize| if REV { G - 1 - g } else { g };
     // Lane `j` of `sh!(k, a, b)` is `a[j + k]`, or `b[j + k - 16]`.
     macro_rules! sh {
@@ -1560,11 +1652,16 @@ pub unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: Weigh
             let mut a0 = _mm512_loadu_ps(n0.as_ptr().add(i));
             let mut a1 = _mm512_loadu_ps(n1.as_ptr().add(i));
             let mut a2 = _mm512_loadu_ps(n2.as_ptr().add(i));
+            // A vector at the frame's side: its lanes' factors.
+            let scaled = SCALED && !(scale.whole.0 <= c && c < scale.whole.1);
             for g in 0..G {
                 let at = w[g].as_ptr().add(i);
                 // An integer sum converts as `value` does (`f32(R)`, rounded to nearest).
-                let wg =
+                let mut wg =
                     if T::INT { _mm512_cvtepi32_ps(_mm512_loadu_si512(at.cast())) } else { _mm512_loadu_ps(at.cast()) };
+                if scaled {
+                    wg = _mm512_mul_ps(wg, _mm512_loadu_ps(fac[g].as_ptr().add(i)));
+                }
                 let o = off(g);
                 dd = _mm512_add_ps(dd, wg);
                 a0 = _mm512_fmadd_ps(wg, v[0][o], a0);
@@ -1580,7 +1677,7 @@ pub unsafe fn fused_rgb_shifted_avx512<const G: usize, const REV: bool, T: Weigh
     for i in n / 16 * 16..n {
         let (mut dd, mut a0, mut a1, mut a2) = (d[i], n0[i], n1[i], n2[i]);
         for g in 0..G {
-            let wg = w[g][i].value();
+            let wg = if SCALED { w[g][i].value() * fac[g][i] } else { w[g][i].value() };
             let o = off(g);
             dd += wg;
             a0 = wg.mul_add(rows[0][i + o], a0);

@@ -17,9 +17,9 @@ use super::kernels::{
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
-    GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, VarianceLane, feature_square_sum_half_avx2,
-    feature_square_sum_half_avx512, fused_rgb_shifted_avx512, guide_pair_products_avx512, guide_variance_pair_avx512,
-    weights_avx512, weights_factors_avx512,
+    EdgeLane, GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, SideFactors, VarianceLane, edge_columns_avx512,
+    feature_square_sum_half_avx2, feature_square_sum_half_avx512, fused_rgb_shifted_avx512, guide_pair_products_avx512,
+    guide_variance_pair_avx512, weights_avx512, weights_factors_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -320,6 +320,7 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
             (0..2 * GROUP_MAX).map(|_| Aligned::zeroed(mid.width())).collect()
         },
         square_sums: vec![0.0f32; features.len() * (mid.width() + s.search_radius)],
+        side_factors: (0..2 * GROUP_MAX).map(|_| Aligned::zeroed(block.width())).collect(),
     };
     let geometry = |dx: i64, dy: i64| {
         let valid = frame.valid_for_offset(dx, dy);
@@ -457,6 +458,10 @@ struct Scratch {
     tf: Vec<Aligned>,
     /// One row of square sums per guide (see [`pair_feature_row`]).
     square_sums: Vec<f32>,
+    /// Each lane's mean weights' factors in the rows whose windows are
+    /// whole vertically (lane `g` of side `s` in row `s * GROUP_MAX + g`,
+    /// see [`side_factors`]).
+    side_factors: Vec<Aligned>,
 }
 
 /// The buffers of job `j`, side `side` (0 forward, 1 mirror), lane `g`.
@@ -548,7 +553,8 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
         Some(p) => p[0].u.y0..p[0].u.y1,
         None => sides[0].d_y.0..sides[0].d_y.1,
     };
-    let Scratch { drow, mrow, weights, pairs: psum, hrow, tf, square_sums } = scratch;
+    let Scratch { drow, mrow, weights, pairs: psum, hrow, tf, square_sums, side_factors: fac } = scratch;
+    side_factors(&sides, f, fac);
     let (mut next_w, mut next_a) = (w_rows.0, a_rows.0);
     for yd in rows {
         // 1. Distance rows and their horizontal sums, every job.
@@ -656,7 +662,8 @@ fn run_step<const W: usize, const AVX512: bool, const AVX2: bool>(
                             continue;
                         }
                         let rows = AccRows { j, si, yl, f, block };
-                        accumulate_side::<W, AVX512>(job, &mut num[j], &mut den[j], side, bufs, rows);
+                        let fac = &fac[si * GROUP_MAX..][..side.lanes.len()];
+                        accumulate_side::<W, AVX512>(job, &mut num[j], &mut den[j], side, bufs, fac, rows);
                     }
                 }
             }
@@ -683,17 +690,20 @@ struct AccRows {
 /// mean weights are the weights' box's row of integer sums, which the
 /// accumulation reads and converts. In a row whose windows are whole
 /// vertically but clipped at the frame's left or right side (every row of
-/// a block at the frame's side), only the columns near the clipped ones
-/// take each lane's mean weights formed and scaled in `mean_w`; the
-/// columns between, where every lane's window is whole, read the box's
-/// sums as a whole row does (docs/performance.md, session 48: 0.98x the
-/// filter's time at 1080p, where every block touches a side). In the rest
-/// (rows within `f` of the frame's top or bottom, or too narrow a span of
-/// whole windows) every column goes through `mean_w`. A pixel takes its
-/// lanes' terms in lane order in every case, and a whole column's mean
-/// weight is its integer sum converted (times a factor of exactly 1,
-/// skipped), so the bits are the same whichever part of a row a pixel
-/// falls in.
+/// a block at the frame's side), the AVX-512 tier reads the box's sums
+/// too, and multiplies those of the vectors and columns near the clipped
+/// ones by their lane's factors (`fac`, see [`side_factors`]) as it reads
+/// them (docs/performance.md, session 49). Elsewhere such a row takes each lane's mean weights
+/// formed and scaled in `mean_w` for the columns near the clipped ones,
+/// and the box's sums for the columns between, where every lane's window
+/// is whole (session 48: 0.98x the filter's time at 1080p, where every
+/// block touches a side). In the rest (rows within `f` of the frame's top
+/// or bottom, or too narrow a span of whole windows) every column goes
+/// through `mean_w`. A pixel takes its lanes' terms in lane order in every
+/// case, a clipped column's mean weight is its integer sum converted then
+/// multiplied by the same factor, and a whole column's is its integer sum
+/// converted (times a factor of exactly 1, which changes no bit), so the
+/// bits are the same whichever path or part of a row a pixel falls in.
 #[inline(always)]
 fn accumulate_side<const W: usize, const AVX512: bool>(
     job: &Job<'_>,
@@ -701,6 +711,7 @@ fn accumulate_side<const W: usize, const AVX512: bool>(
     den: &mut [f32],
     side: &Side<'_>,
     bufs: &mut [LaneBuffers],
+    fac: &[Aligned],
     AccRows { j, si, yl, f, block }: AccRows,
 ) {
     let lanes = side.lanes;
@@ -708,11 +719,15 @@ fn accumulate_side<const W: usize, const AVX512: bool>(
     let k = ((2 * f + 1) * (2 * f + 1)) as f32;
     let vertical = lanes.iter().all(|l| yl - f >= l.valid.y0 && yl + f < l.valid.y1);
     let horizontal = lanes.iter().all(|l| l.acc.x0 >= l.valid.x0 + f && l.acc.x1 <= l.valid.x1 - f);
+    // The box's integer sums of every lane (whole windows vertically).
+    fn whole_rows<'a>(bufs: &'a [LaneBuffers], lanes: &[Lane], j: usize, si: usize, yl: i64, f: i64) -> LaneRows<'a> {
+        lane_rows(lanes, |g, l| {
+            bufs[lane_buf(j, si, g)].h2.whole(yl, l.valid, f, l.acc.width()).expect("a whole window")
+        })
+    }
     if vertical && horizontal {
         // The box's integer sums, read as `f32` by the accumulation.
-        let rows = lane_rows(lanes, |g, l| {
-            bufs[lane_buf(j, si, g)].h2.whole(yl, l.valid, f, l.acc.width()).expect("a whole window")
-        });
+        let rows = whole_rows(bufs, lanes, j, si, yl, f);
         accumulate::<W, AVX512, i32>(num, den, &job.values, &rows[..lanes.len()], at);
         return;
     }
@@ -725,6 +740,15 @@ fn accumulate_side<const W: usize, const AVX512: bool>(
     let (lo, hi) = lanes.iter().fold((c0, c1), |(lo, hi), l| (lo.max(l.valid.x0 + f), hi.min(l.valid.x1 - f)));
     let e0 = c0 + (lo - c0 + 15) / 16 * 16;
     let e1 = e0 + (hi - e0).max(0) / 16 * 16;
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 && vertical {
+        let rows = whole_rows(bufs, lanes, j, si, yl, f);
+        let whole = if e1 > e0 { (e0, e1) } else { (c0, c0) };
+        if accumulate_scaled(num, den, &job.values, &rows[..lanes.len()], fac, whole, at) {
+            return;
+        }
+    }
+    let _ = fac;
     let split = vertical && e1 > e0;
     // Each lane's mean weights where they are formed: the columns before
     // `e0` and from `e1` (every column without the split).
@@ -774,6 +798,133 @@ fn accumulate_side<const W: usize, const AVX512: bool>(
     accumulate::<W, AVX512, i32>(num, den, &job.values, &whole[..lanes.len()], at);
     let right = part(e1, block.x1);
     accumulate::<W, AVX512, f32>(num, den, &job.values, &right[..lanes.len()], at);
+}
+
+/// Each lane's factors of its mean weights in a row whose windows are
+/// whole vertically (`fac[s * GROUP_MAX + g]` for lane `g` of side `s`,
+/// one per column of the lane's accumulation from `acc.x0`): a window
+/// clipped at the frame's side to `nx` columns takes `k / (nx ny)`, as
+/// [`scale_by_count`] computes it with `ny = 2f + 1`; a whole one takes
+/// exactly 1 (`k / (2f + 1)^2`).
+fn side_factors(sides: &[Side<'_>; 2], f: i64, fac: &mut [Aligned]) {
+    let (k, ny) = (((2 * f + 1) * (2 * f + 1)) as f32, (2 * f + 1) as f32);
+    for (si, side) in sides.iter().enumerate() {
+        for (g, lane) in side.lanes.iter().enumerate() {
+            let row = &mut fac[si * GROUP_MAX + g][..lane.acc.width()];
+            let (whole, clipped) = window_columns(lane.acc.x0, row.len(), lane.valid, f);
+            row[whole].fill(1.0);
+            for (i, nx) in clipped {
+                row[i] = k / (nx * ny);
+            }
+        }
+    }
+}
+
+/// [`accumulate`] of a row whose windows are whole vertically and clipped
+/// at the frame's side, from the box's integer sums `rows` (each lane's
+/// `fac` indexed as its sums) on the AVX-512 tier: a mean weight is its sum
+/// converted, times its factor outside the columns `whole` (a whole number
+/// of 16-sample vectors from the first column every lane covers, where
+/// every factor is 1). Returns false, having done nothing, unless the job
+/// has three channels and the lanes' `dx` are consecutive (the fused
+/// path's case).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn accumulate_scaled(
+    num: &mut [Aligned],
+    den: &mut [f32],
+    values: &[&Plane],
+    rows: &[LaneRow<'_, i32>],
+    fac: &[Aligned],
+    whole: (i64, i64),
+    (y, dy, block): (i64, i64, Rect),
+) -> bool {
+    if rows.len() < 2 || num.len() != 3 {
+        return false;
+    }
+    let Some((dmin, rev)) = consecutive_dx(rows) else { return false };
+    let row_off = (y - block.y0) as usize * block.width();
+    let end = |l: &LaneRow<'_, i32>| l.x0 + l.w.len() as i64;
+    let (c0, c1) = (rows.iter().map(|l| l.x0).max().unwrap_or(0), rows.iter().map(end).min().unwrap_or(0));
+    let (u0, u1) = (rows.iter().map(|l| l.x0).min().unwrap_or(0), rows.iter().map(end).max().unwrap_or(0));
+    let c1 = c1.max(c0);
+    // The columns some lanes miss (at most `G - 1` on each side), each
+    // covering lane's term in lane order (as `accumulate`), in a masked
+    // vector.
+    let edges = [(u0, c0.min(u1)), (c1.max(u0), u1)];
+    if edges.iter().any(|(a, b)| b - a > 16) {
+        return false;
+    }
+    for (a, b) in edges {
+        if b <= a {
+            continue;
+        }
+        let mut edge = [EdgeLane { lo: 0, hi: 0, w: &[][..], fac: &[][..], values: [&[][..]; 3] }; GROUP_MAX];
+        for ((l, fl), e) in rows.iter().zip(fac).zip(edge.iter_mut()) {
+            let (lo, hi) = (l.x0.max(a), end(l).min(b));
+            if hi <= lo {
+                continue;
+            }
+            let (from, m) = ((lo - l.x0) as usize, (hi - lo) as usize);
+            let v = |c: usize| values[c].row(y + dy, lo + l.dx, hi + l.dx);
+            let (lo, hi) = ((lo - a) as usize, (hi - a) as usize);
+            *e = EdgeLane { lo, hi, w: &l.w[from..][..m], fac: &fl[from..][..m], values: [v(0), v(1), v(2)] };
+        }
+        let cols = row_off + (a - block.x0) as usize..row_off + (b - block.x0) as usize;
+        let [n0, n1, n2] = num else { unreachable!("three channels") };
+        let acc = [&mut den[cols.clone()], &mut n0[cols.clone()], &mut n1[cols.clone()], &mut n2[cols]];
+        // SAFETY: this runs only in the AVX-512 tier's wrapper (`AVX512`),
+        // which runs only on CPUs with avx512f and fma.
+        unsafe { edge_columns_avx512(acc, &edge[..rows.len()]) };
+    }
+    if c1 > c0 {
+        let span = row_off + (c0 - block.x0) as usize..row_off + (c1 - block.x0) as usize;
+        let vectors = ((whole.0 - c0).max(0) as usize / 16, (whole.1 - c0).max(0) as usize / 16);
+        let at = (y + dy, c0, c1, span, vectors, (dmin, rev));
+        const _: () = assert!(GROUP_MAX == 7);
+        match rows.len() {
+            2 => scaled_span::<2>(num, den, values, rows, fac, at),
+            3 => scaled_span::<3>(num, den, values, rows, fac, at),
+            4 => scaled_span::<4>(num, den, values, rows, fac, at),
+            5 => scaled_span::<5>(num, den, values, rows, fac, at),
+            6 => scaled_span::<6>(num, den, values, rows, fac, at),
+            _ => scaled_span::<GROUP_MAX>(num, den, values, rows, fac, at),
+        }
+    }
+    true
+}
+
+/// The fused span of [`accumulate_scaled`], `G` lanes: value row `yq`,
+/// columns `[c0, c1)`, the whole vectors `vectors`, the lanes' smallest
+/// `dx` and whether they decrease.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn scaled_span<const G: usize>(
+    num: &mut [Aligned],
+    den: &mut [f32],
+    values: &[&Plane],
+    rows: &[LaneRow<'_, i32>],
+    fac: &[Aligned],
+    (yq, c0, c1, span, whole, (dmin, rev)): (i64, i64, i64, std::ops::Range<usize>, (usize, usize), (i64, bool)),
+) {
+    let n = (c1 - c0) as usize;
+    let from = |g: usize| (c0 - rows[g].x0) as usize;
+    let w: [&[i32]; G] = std::array::from_fn(|g| &rows[g].w[from(g)..][..n]);
+    let scale = SideFactors { fac: std::array::from_fn(|g| &fac[g][from(g)..][..n]), whole };
+    let row = |c: usize| values[c].row(yq, c0 + dmin, c1 + dmin + G as i64 - 1);
+    let [n0, n1, n2] = num else { unreachable!("three channels") };
+    let (d, n0, n1, n2) = (&mut den[span.clone()], &mut n0[span.clone()], &mut n1[span.clone()], &mut n2[span]);
+    let rows3 = [row(0), row(1), row(2)];
+    // SAFETY: this runs only in the AVX-512 tier's wrapper (`AVX512`), which
+    // runs only on CPUs with avx512f and fma.
+    unsafe {
+        if rev {
+            fused_rgb_shifted_avx512::<G, true, true, i32>([d, n0, n1, n2], w, rows3, scale);
+        } else {
+            fused_rgb_shifted_avx512::<G, false, true, i32>([d, n0, n1, n2], w, rows3, scale);
+        }
+    }
 }
 
 /// The distances of row `y`, columns `x`, for offset `(dx, dy)` into `d` and
@@ -967,6 +1118,9 @@ struct LaneBuffers {
     h2: ColumnBox,
     mean_w: Aligned,
 }
+
+/// Every lane's box sums of a row (the first `lanes.len()`).
+type LaneRows<'a> = [LaneRow<'a, i32>; GROUP_MAX];
 
 /// One lane's row of mean weights `w`, for columns from `x0`.
 #[derive(Clone, Copy)]
@@ -1331,10 +1485,11 @@ fn accumulate_span<const W: usize, const G: usize, const AVX512: bool, T: Weight
         // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper, which
         // runs only on CPUs with avx512f and fma.
         unsafe {
+            let none = SideFactors::NONE;
             if rev {
-                fused_rgb_shifted_avx512::<G, true, T>([d, n0, n1, n2], w, rows3);
+                fused_rgb_shifted_avx512::<G, true, false, T>([d, n0, n1, n2], w, rows3, none);
             } else {
-                fused_rgb_shifted_avx512::<G, false, T>([d, n0, n1, n2], w, rows3);
+                fused_rgb_shifted_avx512::<G, false, false, T>([d, n0, n1, n2], w, rows3, none);
             }
         }
         return;
