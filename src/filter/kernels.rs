@@ -607,23 +607,10 @@ pub unsafe fn taps_push_avx512<const F: usize, const CLAMP: bool, const CASE: u8
     use std::arch::x86_64::*;
     let n = ring.len();
     assert!(run.len() == n && src.len() == n + 2 * F, "a window of 2F + 1 taps per pushed sample");
-    let (lo, hi) = (_mm512_set1_ps(-limit), _mm512_set1_ps(limit));
     // Columns `i..i + 16` (those of `k`) of the sums `x`, pushed.
     let mut push = |i: usize, x: __m512, k: __mmask16| {
-        // `max` returns its second operand when the first is NaN.
-        let x = if CLAMP { _mm512_min_ps(_mm512_max_ps(x, lo), hi) } else { x };
-        let v = _mm512_cvt_roundps_epi32::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(x);
         // SAFETY: `i < n`, and the mask selects only the columns below `n`.
-        unsafe {
-            let (rp, sp) = (ring.as_mut_ptr().add(i), run.as_mut_ptr().add(i));
-            let s = match CASE {
-                0 => v,
-                1 => _mm512_add_epi32(masked::load_epi32(k, sp), v),
-                _ => _mm512_sub_epi32(_mm512_add_epi32(masked::load_epi32(k, sp), v), masked::load_epi32(k, rp)),
-            };
-            masked::store_epi32(rp, k, v);
-            masked::store_epi32(sp, k, s);
-        }
+        unsafe { push_vector::<CLAMP, CASE>(ring.as_mut_ptr().add(i), run.as_mut_ptr().add(i), x, k, limit) };
     };
     let mut taps = Taps::<F>::new(src);
     // The row's interior, where every load of `Taps::next` (up to sample
@@ -642,6 +629,85 @@ pub unsafe fn taps_push_avx512<const F: usize, const CLAMP: bool, const CASE: u8
         push(i, x, k);
         i += CHUNK;
     }
+}
+
+/// The sums `x` of 16 columns (those of `k`) pushed into a box's ring
+/// slot `rp` and running sums `sp` as [`taps_push_avx512`] pushes them.
+///
+/// # Safety
+/// The CPU must support AVX-512F, and the lanes of `k` must lie inside the
+/// rows `rp` and `sp` point into.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn push_vector<const CLAMP: bool, const CASE: u8>(
+    rp: *mut i32,
+    sp: *mut i32,
+    x: std::arch::x86_64::__m512,
+    k: std::arch::x86_64::__mmask16,
+    limit: f32,
+) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller's.
+    unsafe {
+        // `max` returns its second operand when the first is NaN.
+        let x = if CLAMP { _mm512_min_ps(_mm512_max_ps(x, _mm512_set1_ps(-limit)), _mm512_set1_ps(limit)) } else { x };
+        let v = _mm512_cvt_roundps_epi32::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(x);
+        let s = match CASE {
+            0 => v,
+            1 => _mm512_add_epi32(masked::load_epi32(k, sp), v),
+            _ => _mm512_sub_epi32(_mm512_add_epi32(masked::load_epi32(k, sp), v), masked::load_epi32(k, rp)),
+        };
+        masked::store_epi32(rp, k, v);
+        masked::store_epi32(sp, k, s);
+    }
+}
+
+/// The clipped windows of a row next to its clip's edge, summed and pushed
+/// in one masked vector: the columns `x0..x0 + ring.len()` (at most 16),
+/// each column `x`'s window `[x - f, x + f] ∩ [c0, c1)` (`win = ((c0, c1),
+/// f, x0)`) summed from its
+/// first sample in increasing x (from `-0`, which adds exactly: the scalar
+/// sum's bits), then pushed as [`taps_push_avx512`] pushes a sum. `src`
+/// holds the row from column `src_x0` and covers every window.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+pub unsafe fn clipped_push_avx512<const CLAMP: bool, const CASE: u8>(
+    src: &[f32],
+    src_x0: i64,
+    ((c0, c1), f, x0): ((i64, i64), i64, i64),
+    ring: &mut [i32],
+    run: &mut [i32],
+    limit: f32,
+) {
+    use std::arch::x86_64::*;
+    let n = ring.len();
+    assert!(n <= 16 && run.len() == n && n > 0, "at most 16 columns");
+    let (first, last) = ((x0 - f).max(c0), (x0 + n as i64 - 1 + f).min(c1 - 1));
+    assert!(first >= src_x0 && last < src_x0 + src.len() as i64, "the windows inside the row");
+    let all: __mmask16 = ((1u32 << n) - 1) as u16;
+    // Lane `i` is column `x0 + i`: its window's first and last columns.
+    let x = _mm512_add_epi32(
+        _mm512_set1_epi32(x0 as i32),
+        _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
+    );
+    let a = _mm512_max_epi32(_mm512_sub_epi32(x, _mm512_set1_epi32(f as i32)), _mm512_set1_epi32(c0 as i32));
+    let b = _mm512_min_epi32(_mm512_add_epi32(x, _mm512_set1_epi32(f as i32)), _mm512_set1_epi32(c1 as i32 - 1));
+    let mut acc = _mm512_set1_ps(-0.0);
+    for t in 0..=2 * f {
+        // Tap `t` of lane `i`: column `x0 + i - f + t`.
+        let col = _mm512_add_epi32(x, _mm512_set1_epi32((t - f) as i32));
+        let k = all & _mm512_cmpge_epi32_mask(col, a) & _mm512_cmple_epi32_mask(col, b);
+        // SAFETY: the lanes of `k` read columns `first..=last`, inside
+        // `src` (asserted); the pointer to lane 0 is formed with
+        // `wrapping_offset`.
+        let v = unsafe { _mm512_maskz_loadu_ps(k, src.as_ptr().wrapping_offset((x0 - f + t - src_x0) as isize)) };
+        acc = _mm512_mask_add_ps(acc, k, acc, v);
+    }
+    // SAFETY: the lanes of `all` are the `n` columns of `ring` and `run`.
+    unsafe { push_vector::<CLAMP, CASE>(ring.as_mut_ptr(), run.as_mut_ptr(), acc, all, limit) };
 }
 
 /// Masked loads and stores of 16 lanes that run as plain ones when the mask

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::column_sums::{ColumnBox, Quantiser};
+use super::column_sums::{ColumnBox, PushCase, Quantiser};
 use super::kernels::{
     CHUNK, CHUNK_AVX512, FeatureRows, PRODUCTS_MAX, WeightSample, accumulate_colour_distance_pair, chunk, chunk_count,
     chunk_i32, chunk_mut, chunk_of, chunk_start, colour_distance_pair_rgb, cut, exp2_weight_scaled_lanes,
@@ -17,9 +17,9 @@ use super::kernels::{
 };
 #[cfg(target_arch = "x86_64")]
 use super::kernels::{
-    EdgeLane, GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, SideFactors, VarianceLane, edge_columns_avx512,
-    feature_square_sum_half_avx2, feature_square_sum_half_avx512, fused_rgb_shifted_avx512, guide_pair_products_avx512,
-    guide_variance_pair_avx512, weights_avx512, weights_factors_avx512,
+    EdgeLane, GuideRow, PAIR_GUIDE_CHANNELS_MAX, ProductLane, SideFactors, VarianceLane, clipped_push_avx512,
+    edge_columns_avx512, feature_square_sum_half_avx2, feature_square_sum_half_avx512, fused_rgb_shifted_avx512,
+    guide_pair_products_avx512, guide_variance_pair_avx512, weights_avx512, weights_factors_avx512,
 };
 use super::simd;
 #[cfg(target_arch = "x86_64")]
@@ -187,9 +187,10 @@ impl ScratchShape {
         let rings = self.jobs.max(1) as u64 * lanes * (boxes + bw + 7 * 15);
         // Per lane a row of the guides' weight argument; a row of square sums per guide.
         let guides = if self.guides > 0 { lanes * (mid_w + 15) + self.guides as u64 * (mid_w + r) } else { 0 };
-        // The pair's distance, mirror and pair-sum rows, and a lane's
-        // patch-distance and weight rows.
-        let rows = 3 * (bw + 4 * f + r + 15) + 2 * (mid_w + 15);
+        // The pair's distance, mirror and pair-sum rows, a lane's
+        // patch-distance and weight rows, and every lane's row of factors
+        // at the frame's sides.
+        let rows = 3 * (bw + 4 * f + r + 15) + 2 * (mid_w + 15) + lanes * (bw + 15);
         4 * (self.accumulators as u64 * bw * bh + rings + guides + rows)
     }
 }
@@ -1230,14 +1231,40 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
 ) {
     #[cfg(target_arch = "x86_64")]
     if AVX512 && (1..=4).contains(&f) {
-        let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, h);
+        let dst_x1 = dst_x0 + h.len() as i64;
+        let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
+        let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
         let mut slot = b.slot(y, y0, h.len());
-        slot.push::<CLAMP>(0, &h[..inner.start]);
-        slot.push::<CLAMP>(inner.end, &h[inner.end..]);
+        let limit = slot.q.limit();
+        let (inner, from) = if inner_x0 - dst_x0 <= 16 && dst_x1 - inner_x1 <= 16 {
+            // The clipped windows at each end (at most `f` columns, unless
+            // the row is narrower than its windows) in one masked vector.
+            for (x0, x1) in [(dst_x0, inner_x0), (inner_x1, dst_x1)] {
+                if x1 > x0 {
+                    let at = (x0 - dst_x0) as usize..(x1 - dst_x0) as usize;
+                    let (ring, run) = (&mut slot.ring[at.clone()], &mut slot.run[at]);
+                    let win = ((clip.x0, clip.x1), f, x0);
+                    // SAFETY: `AVX512` is true only in the AVX-512 tier's
+                    // wrapper, which runs only on CPUs with avx512f.
+                    unsafe {
+                        match slot.case {
+                            PushCase::First => clipped_push_avx512::<CLAMP, 0>(src, src_x0, win, ring, run, limit),
+                            PushCase::Filling => clipped_push_avx512::<CLAMP, 1>(src, src_x0, win, ring, run, limit),
+                            PushCase::Steady => clipped_push_avx512::<CLAMP, 2>(src, src_x0, win, ring, run, limit),
+                        }
+                    }
+                }
+            }
+            ((inner_x0 - dst_x0) as usize..(inner_x1 - dst_x0) as usize, (inner_x0 - f - src_x0).max(0) as usize)
+        } else {
+            let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, h);
+            slot.push::<CLAMP>(0, &h[..inner.start]);
+            slot.push::<CLAMP>(inner.end, &h[inner.end..]);
+            (inner, from)
+        };
         if !inner.is_empty() {
             let src = &src[from..from + inner.len() + 2 * f as usize];
             let (ring, run) = (&mut slot.ring[inner.clone()], &mut slot.run[inner]);
-            let limit = slot.q.limit();
             // SAFETY: `AVX512` is true only in the AVX-512 tier's wrapper,
             // which runs only on CPUs with avx512f.
             unsafe {
