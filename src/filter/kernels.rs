@@ -664,11 +664,11 @@ unsafe fn push_vector<const CLAMP: bool, const CASE: u8>(
 
 /// The clipped windows of a row next to its clip's edge, summed and pushed
 /// in one masked vector: the columns `x0..x0 + ring.len()` (at most 16),
-/// each column `x`'s window `[x - f, x + f] ∩ [c0, c1)` (`win = ((c0, c1),
-/// f, x0)`) summed from its
-/// first sample in increasing x (from `-0`, which adds exactly: the scalar
-/// sum's bits), then pushed as [`taps_push_avx512`] pushes a sum. `src`
-/// holds the row from column `src_x0` and covers every window.
+/// with `win = ((c0, c1), f, x0)` each column `x`'s window
+/// `[x - f, x + f] ∩ [c0, c1)` summed from its first sample in increasing
+/// x (from `-0`, which adds exactly: the scalar sum's bits), then pushed
+/// as [`taps_push_avx512`] pushes a sum. `src` holds the row from column
+/// `src_x0` and covers every window.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.

@@ -692,19 +692,23 @@ struct AccRows {
 /// accumulation reads and converts. In a row whose windows are whole
 /// vertically but clipped at the frame's left or right side (every row of
 /// a block at the frame's side), the AVX-512 tier reads the box's sums
-/// too, and multiplies those of the vectors and columns near the clipped
-/// ones by their lane's factors (`fac`, see [`side_factors`]) as it reads
-/// them (docs/performance.md, session 49). Elsewhere such a row takes each lane's mean weights
-/// formed and scaled in `mean_w` for the columns near the clipped ones,
-/// and the box's sums for the columns between, where every lane's window
-/// is whole (session 48: 0.98x the filter's time at 1080p, where every
-/// block touches a side). In the rest (rows within `f` of the frame's top
-/// or bottom, or too narrow a span of whole windows) every column goes
-/// through `mean_w`. A pixel takes its lanes' terms in lane order in every
-/// case, a clipped column's mean weight is its integer sum converted then
-/// multiplied by the same factor, and a whole column's is its integer sum
-/// converted (times a factor of exactly 1, which changes no bit), so the
-/// bits are the same whichever path or part of a row a pixel falls in.
+/// too, multiplies those of the vectors and columns near the clipped ones
+/// by their lane's factors (`fac`, see [`side_factors`]) as it reads them,
+/// and takes the columns only some lanes cover in one masked vector per
+/// side ([`accumulate_scaled`]; docs/performance.md, session 49: 0.97x the
+/// full filter's time at 1080p, where every block touches a side). Where
+/// that path does not apply (other tiers, lanes whose `dx` are not
+/// consecutive, jobs of other than three channels), such a row forms each
+/// lane's mean weights in `mean_w` (converted and scaled) for the columns
+/// near the clipped ones and reads the box's sums for the columns between,
+/// where every lane's window is whole (session 48). In the rest (rows
+/// within `f` of the frame's top or bottom, or too narrow a span of whole
+/// windows) every column goes through `mean_w`. A pixel takes its lanes'
+/// terms in lane order in every case, a clipped column's mean weight is
+/// its integer sum converted then multiplied by the same factor, and a
+/// whole column's is its integer sum converted (times a factor of exactly
+/// 1, which changes no bit), so the bits are the same whichever path or
+/// part of a row a pixel falls in.
 #[inline(always)]
 fn accumulate_side<const W: usize, const AVX512: bool>(
     job: &Job<'_>,
