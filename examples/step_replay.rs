@@ -9,8 +9,10 @@
 //! guided with `GUIDES=1`) and pushes into the weight boxes (`q`), and both
 //! sides' accumulation of seven lanes into the job's numerators and
 //! denominator (`a`, the kernel's `kernels::fused_rgb_shifted_avx512`;
-//! `A` instead: the path of a row with a
-//! clipped window, each lane's integer sums converted into a row of `f32`
+//! `A` instead: the path of a row clipped at the frame's side, each
+//! lane's sums in its first and last vectors multiplied by its factors as
+//! they are read, as the kernel does since session 49; in session 48 `A`
+//! replayed that row's former path, the sums converted into a row of `f32`
 //! first). `JOBS` (default 1) is 1 for colour-only, 2 for the full filter.
 //!
 //! `STAGES` picks the stages that run (default `dpgwqa`); `SPLIT=1` runs
@@ -192,7 +194,9 @@ fn run(stages: &str, reps: usize) -> f64 {
     let mut tf: Vec<Vec<f32>> = (0..2 * G).map(|_| vec![0f32; mid]).collect();
     let (mut d, mut m) = (vec![0f32; outer + G], vec![0f32; outer + G]);
     let mut wt = vec![0f32; mid];
-    let mut mean_w: Vec<Vec<f32>> = (0..2 * G).map(|_| vec![0f32; n]).collect();
+    // A lane's factors at the frame's side: a window clipped to 4-6 of its
+    // 7 columns in the first and last `F` samples, exactly 1 elsewhere.
+    let fac: Vec<f32> = (0..n).map(|x| CAP as f32 / (F + 1 + x.min(n - 1 - x).min(F)) as f32).collect();
     let consts = (1.0f32, 1e-10f32 / 1024.0, 0.2f32 / 1024.0);
     let mut jobs = jobs;
     let mut step = |y: usize| {
@@ -271,43 +275,22 @@ fn run(stages: &str, reps: usize) -> f64 {
                 [&u[0][y][1..], &u[1][y][1..], &u[2][y][1..]]
             };
             let ya = |side: usize| if side == 0 { ya } else { ya + dy };
-            if on('A') {
-                // The kernel's path where a lane's window is clipped somewhere in
-                // the row (every row of a block at the frame's side): each
-                // lane's sums converted into a row of `f32` first.
-                for (row, b) in mean_w.iter_mut().zip(h2.iter()) {
-                    for (o, s) in row.iter_mut().zip(&b.run) {
-                        *o = *s as f32;
-                    }
-                }
-                for side in 0..2 {
-                    let w: [&[f32]; G] = std::array::from_fn(|g| &mean_w[side * G + g][..]);
-                    let [d, n0, n1, n2] = &mut num[..] else { unreachable!() };
-                    let y = ya(side);
-                    // SAFETY: avx512f and fma (this function's target features).
-                    unsafe {
-                        kernels::fused_rgb_shifted_avx512::<G, false, false, _>(
-                            [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
-                            w,
-                            vals(side),
-                            kernels::SideFactors::NONE,
-                        )
-                    };
-                }
-            }
-            if on('a') {
+            if on('a') || on('A') {
+                // Every vector but the first and last reads its sums as they are.
+                let scale = kernels::SideFactors { fac: [&fac[..]; G], whole: (1, (n / 16).saturating_sub(1)) };
                 for side in 0..2 {
                     let w: [&[i32]; G] = std::array::from_fn(|g| &h2[side * G + g].run[..]);
                     let [d, n0, n1, n2] = &mut num[..] else { unreachable!() };
                     let y = ya(side);
+                    let acc = [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]];
                     // SAFETY: avx512f and fma (this function's target features).
                     unsafe {
-                        kernels::fused_rgb_shifted_avx512::<G, false, false, _>(
-                            [&mut d[y], &mut n0[y], &mut n1[y], &mut n2[y]],
-                            w,
-                            vals(side),
-                            kernels::SideFactors::NONE,
-                        )
+                        if on('A') {
+                            kernels::fused_rgb_shifted_avx512::<G, false, true, _>(acc, w, vals(side), scale)
+                        } else {
+                            let none = kernels::SideFactors::NONE;
+                            kernels::fused_rgb_shifted_avx512::<G, false, false, _>(acc, w, vals(side), none)
+                        }
                     };
                 }
             }
