@@ -510,8 +510,9 @@ struct BandWork {
     band: Rect,
     inputs: Arc<FrameInputs>,
     tiles: Vec<Rect>,
-    /// The denoised channels over the band, each tile pasted in as it finishes.
-    out_planes: Mutex<Vec<Plane>>,
+    /// Each finished tile's denoised channels (the sink's order), joined
+    /// into the band's rows once every tile is done ([`band_rows`]).
+    tile_outputs: Mutex<Vec<(Rect, Vec<Plane>)>>,
     repaired: AtomicUsize,
 }
 
@@ -545,8 +546,10 @@ impl InFlight {
             return Err(e);
         }
         counters.repaired += work.repaired.load(Ordering::Relaxed);
-        let out_planes =
-            std::mem::take(&mut *work.out_planes.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?);
+        let tile_outputs = std::mem::take(
+            &mut *work.tile_outputs.lock().map_err(|_| Error::Internal("a tile worker panicked".into()))?,
+        );
+        let out_planes = band_rows(work.band, ctx.cp.output_idx.len(), tile_outputs)?;
         // (The tasks may still hold their handles for a moment: the planes
         // are taken, not the `Arc` unwrapped.)
         let mut out: Vec<Option<ChannelRows>> = (0..ctx.names.len()).map(|_| None).collect();
@@ -568,6 +571,43 @@ impl InFlight {
             })
             .collect()
     }
+}
+
+/// The band's planes of `channels` denoised channels from its tiles'
+/// (`(tile, planes)`, any order; the tiles cover the band in a grid): each
+/// row the tiles' rows one after the other in `x`. Each sample is written
+/// once, where filling the band's planes first and pasting each tile into
+/// them wrote it twice; each channel's tile planes are freed once that
+/// channel is joined.
+fn band_rows(band: Rect, channels: usize, mut tiles: Vec<(Rect, Vec<Plane>)>) -> Result<Vec<Plane>, Error> {
+    tiles.sort_by_key(|(t, _)| (t.y0, t.x0));
+    let rects: Vec<Rect> = tiles.iter().map(|(t, _)| *t).collect();
+    let mut planes: Vec<Vec<Option<Plane>>> =
+        tiles.into_iter().map(|(_, p)| p.into_iter().map(Some).collect()).collect();
+    let mismatch = || Error::Internal(format!("the tiles of band {band:?} do not cover it"));
+    if planes.iter().any(|p| p.len() != channels) {
+        return Err(mismatch());
+    }
+    (0..channels)
+        .map(|c| {
+            let parts: Vec<Plane> = planes.iter_mut().map(|p| p[c].take().expect("each channel taken once")).collect();
+            let mut data = Vec::with_capacity(band.area());
+            for y in band.y0..band.y1 {
+                let mut x = band.x0;
+                for (t, part) in rects.iter().zip(&parts).filter(|(t, _)| t.y0 <= y && y < t.y1) {
+                    if t.x0 != x || part.rect() != *t {
+                        return Err(mismatch());
+                    }
+                    data.extend_from_slice(part.row(y, t.x0, t.x1));
+                    x = t.x1;
+                }
+                if x != band.x1 {
+                    return Err(mismatch());
+                }
+            }
+            Plane::from_vec(band, data).ok_or_else(mismatch)
+        })
+        .collect()
 }
 
 /// The time a stage had work in hand.
@@ -632,8 +672,8 @@ fn prepare_band(
     let work = BandWork {
         band,
         inputs: Arc::new(inputs),
+        tile_outputs: Mutex::new(Vec::with_capacity(tiles.len())),
         tiles,
-        out_planes: Mutex::new(cp.output_idx.iter().map(|_| Plane::filled(band, 0.0)).collect()),
         repaired: AtomicUsize::new(0),
     };
     (work, carried)
@@ -708,9 +748,9 @@ fn start_tile<'s>(
     }
 }
 
-/// A tile's last block is done: assemble the tile and paste it into the
-/// band's outputs (each finished tile at once, so only the tiles being
-/// filtered hold results).
+/// A tile's last block is done: assemble the tile and hand its planes to
+/// the band, which joins its tiles' rows once every tile is done
+/// ([`band_rows`]).
 fn finish_tile(work: &TileWork<'_>, ctx: &BandCtx<'_>) {
     let res = (|| {
         let poisoned = || Error::Internal("a tile worker panicked".into());
@@ -720,11 +760,8 @@ fn finish_tile(work: &TileWork<'_>, ctx: &BandCtx<'_>) {
         };
         let d = work.region.finish(blocks);
         work.band.repaired.fetch_add(d.repaired, Ordering::Relaxed);
-        let mut planes = work.band.out_planes.lock().map_err(|_| poisoned())?;
-        for (dst, src) in planes.iter_mut().zip(d.colour.iter().chain(d.layers.iter().flatten())) {
-            dst.paste(src);
-        }
-        drop(planes);
+        let planes: Vec<Plane> = d.colour.into_iter().chain(d.layers.into_iter().flatten()).collect();
+        work.band.tile_outputs.lock().map_err(|_| poisoned())?.push((work.tile, planes));
         let (t, done_px) = (work.tile, work.report.1);
         let done = done_px.fetch_add(t.area(), Ordering::Relaxed) + t.area();
         tracing::trace!(target: PROGRESS_TARGET, done = done as u64, total = ctx.frame.area() as u64);
@@ -748,6 +785,29 @@ mod tests {
         }
         assert_eq!(y, frame.y1);
         bands.iter().map(Rect::height).collect()
+    }
+
+    /// `band_rows` joins a grid of tiles, given in any order, into the band's
+    /// planes sample for sample, and refuses tiles that leave a gap.
+    #[test]
+    fn band_rows_join_the_tiles_of_a_grid() {
+        let band = Rect { x0: -3, y0: 10, x1: 17, y1: 25 };
+        let value = |c: usize| move |x: i64, y: i64| (c * 10_000) as f32 + (y * 100 + x) as f32;
+        let tiles = band.tiles(7, 6);
+        assert!(tiles.len() > 4, "{tiles:?}");
+        let outputs = |tiles: &[Rect]| -> Vec<(Rect, Vec<Plane>)> {
+            tiles.iter().rev().map(|&t| (t, (0..3).map(|c| Plane::from_fn(t, value(c))).collect())).collect()
+        };
+        let joined = band_rows(band, 3, outputs(&tiles)).unwrap();
+        for (c, p) in joined.iter().enumerate() {
+            assert_eq!(*p, Plane::from_fn(band, value(c)));
+        }
+        // A missing tile, or a tile's planes over another rect, is an error.
+        assert!(band_rows(band, 3, outputs(&tiles[1..])).is_err());
+        let mut wrong = outputs(&tiles);
+        wrong[0].1[1] = Plane::from_fn(tiles[1], value(1));
+        assert_ne!(wrong[0].0, tiles[1]);
+        assert!(band_rows(band, 3, wrong).is_err());
     }
 
     #[test]

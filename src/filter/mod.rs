@@ -515,8 +515,20 @@ impl<'a> PreparedRegion<'a> {
         if self.inputs.layers.is_empty() {
             Denoised { colour: results.pop().expect("one job"), layers: Vec::new(), repaired }
         } else {
-            let mut colour: Vec<Plane> = results[0].clone();
-            for layer in &results[1..] {
+            // The first two layers' sum formed as it is written (one pass
+            // instead of a copy of the first then an add), the others added.
+            let mut colour: Vec<Plane> = match &results[..] {
+                [a, b, ..] => a
+                    .iter()
+                    .zip(b)
+                    .map(|(a, b)| {
+                        let sum = a.data().iter().zip(b.data()).map(|(x, y)| x + y).collect();
+                        Plane::from_vec(a.rect(), sum).expect("layers over the same rect")
+                    })
+                    .collect(),
+                _ => results[0].clone(),
+            };
+            for layer in results.iter().skip(2) {
                 for (acc, p) in colour.iter_mut().zip(layer) {
                     for (a, v) in acc.data_mut().iter_mut().zip(p.data()) {
                         *a += *v;

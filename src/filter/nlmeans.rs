@@ -141,9 +141,21 @@ pub fn blocks(out: Rect, rows: usize) -> Vec<Rect> {
 
 /// The blocks' results ([`filter_block`], any order) pasted into planes over `out`.
 pub fn assemble(jobs: &[Job<'_>], out: Rect, blocks: impl IntoIterator<Item = Vec<Vec<Plane>>>) -> Vec<Vec<Plane>> {
+    let mut blocks = blocks.into_iter();
+    let Some(first) = blocks.next() else {
+        return jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
+    };
+    let covers = first.len() == jobs.len()
+        && first.iter().zip(jobs).all(|(p, j)| p.len() == j.values.len() && p.iter().all(|p| p.rect() == out));
+    let mut rest = blocks.peekable();
+    // One block covering `out` (a 1080p tile on two threads): its planes are
+    // the outputs, moved instead of copied into planes filled first.
+    if covers && rest.peek().is_none() {
+        return first;
+    }
     let mut outputs: Vec<Vec<Plane>> =
         jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
-    for block in blocks {
+    for block in std::iter::once(first).chain(rest) {
         for (job_out, block_job) in outputs.iter_mut().zip(block) {
             for (plane, part) in job_out.iter_mut().zip(block_job) {
                 plane.paste(&part);
@@ -403,16 +415,16 @@ fn filter_block_body<const W: usize, const AVX512: bool, const AVX2: bool>(
         run_step::<W, AVX512, AVX2>(&ctx, &mut num, &mut den, sides, Some(&pairs[..np]), &mut lanes, &mut scratch);
     }
 
-    num.into_iter()
-        .zip(den)
+    // Each output written once, as it is divided (no division in place
+    // followed by a copy out of the aligned buffer).
+    num.iter()
+        .zip(&den)
         .map(|(chans, den)| {
             chans
-                .into_iter()
-                .map(|mut n| {
-                    for (v, d) in n.iter_mut().zip(den.iter()) {
-                        *v /= *d;
-                    }
-                    Plane::from_vec(block, n.to_vec()).expect("block-sized buffer")
+                .iter()
+                .map(|n| {
+                    let out = n.iter().zip(den.iter()).map(|(v, d)| v / d).collect();
+                    Plane::from_vec(block, out).expect("block-sized buffer")
                 })
                 .collect()
         })
