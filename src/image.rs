@@ -266,28 +266,6 @@ impl ChannelRows {
         Plane::from_vec(self.rect, samples).expect("rows hold rect.area() samples")
     }
 
-    /// The rows as an `f32` plane, and with `keep` the rows `[y0, y1)` of
-    /// them in their own type: `f32` rows copied (their buffer becomes the
-    /// plane), others cut from the buffer in place once it is converted (no
-    /// fresh buffer for them).
-    pub fn into_plane_keeping(self, keep: Option<(i64, i64)>) -> (Plane, Option<ChannelRows>) {
-        let Some((y0, y1)) = keep else { return (self.into_plane(), None) };
-        if matches!(self.samples, Samples::F32(_)) {
-            let rows = self.rows(y0, y1);
-            return (self.into_plane(), Some(rows));
-        }
-        let plane = Plane::from_vec(self.rect, self.samples.to_f32()).expect("rows hold rect.area() samples");
-        let w = self.rect.width();
-        let range = (y0 - self.rect.y0) as usize * w..(y1 - self.rect.y0) as usize * w;
-        let mut samples = self.samples;
-        match &mut samples {
-            Samples::F16(v) => cut_to(v, range),
-            Samples::F32(v) => cut_to(v, range),
-            Samples::U32(v) => cut_to(v, range),
-        }
-        (plane, Some(ChannelRows { rect: Rect { y0, y1, ..self.rect }, samples }))
-    }
-
     /// The sub-range of rows `[y0, y1)` (full width).
     pub fn rows(&self, y0: i64, y1: i64) -> ChannelRows {
         let w = self.rect.width();
@@ -299,33 +277,9 @@ impl ChannelRows {
     }
 }
 
-/// `v` cut to `v[range]` in place.
-fn cut_to<T>(v: &mut Vec<T>, range: std::ops::Range<usize>) {
-    v.truncate(range.end);
-    v.drain(..range.start);
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// `into_plane_keeping` gives the plane of every sample and the kept
-    /// rows in their own type, whatever the type.
-    #[test]
-    fn plane_and_kept_rows_of_every_sample_type() {
-        let rect = Rect::from_origin_size(-2, 5, 7, 9);
-        let values: Vec<f32> = (0..rect.area()).map(|i| i as f32 * 0.25 - 3.0).collect();
-        for samples in [
-            Samples::F32(values.clone()),
-            Samples::F16(values.iter().map(|&v| half::f16::from_f32(v)).collect()),
-            Samples::U32((0..rect.area() as u32).collect()),
-        ] {
-            let rows = ChannelRows { rect, samples };
-            let (want_plane, want_rows) = (rows.clone().into_plane(), rows.rows(7, 11));
-            assert_eq!(rows.clone().into_plane_keeping(None), (want_plane.clone(), None));
-            assert_eq!(rows.into_plane_keeping(Some((7, 11))), (want_plane, Some(want_rows)));
-        }
-    }
 
     /// A plane of exact half floats gives its halves, row by row; one
     /// sample that is not a half (anywhere, also past the first 256) gives none.

@@ -638,35 +638,23 @@ fn prepare_band(
 ) -> (BandWork, Vec<(usize, ChannelRows)>) {
     let BandIn { band, filter_rows, other_rows } = b;
     let cp = ctx.cp;
-    // Filter channels that are carried (not denoised) go out over the band
-    // only, kept as each channel is converted.
-    let rows: Vec<(ChannelRows, Option<(i64, i64)>)> = cp
-        .filter_idx
-        .iter()
-        .zip(filter_rows)
-        .map(|(&i, r)| (r, (!cp.output_idx.contains(&i) && cp.sinks(i)).then_some((band.y0, band.y1))))
-        .collect();
+    // Filter channels that are carried (not denoised) go out over the band only.
+    let mut carried: Vec<(usize, ChannelRows)> = Vec::new();
+    for (&i, r) in cp.filter_idx.iter().zip(&filter_rows) {
+        if !cp.output_idx.contains(&i) && cp.sinks(i) {
+            carried.push((i, r.rows(band.y0, band.y1)));
+        }
+    }
+    carried.extend(cp.other_idx.iter().copied().zip(other_rows));
     // f32 planes, each converted once and moved into the inputs at its last use.
     let uses = ctx.roles.inputs_channels();
     // Each channel's rows are freed once converted. With no band in flight the
     // workers are idle and convert; else this thread does, beside them (a job
     // given to the pool would wait behind the queued tiles).
-    let convert = |(r, keep): (ChannelRows, Option<(i64, i64)>)| r.into_plane_keeping(keep);
-    let converted: Vec<(Plane, Option<ChannelRows>)> = match pool {
-        Some(pool) => pool.install(|| rows.into_par_iter().map(convert).collect()),
-        None => rows.into_iter().map(convert).collect(),
+    let converted: Vec<Plane> = match pool {
+        Some(pool) => pool.install(|| filter_rows.into_par_iter().map(ChannelRows::into_plane).collect()),
+        None => filter_rows.into_iter().map(ChannelRows::into_plane).collect(),
     };
-    let mut carried: Vec<(usize, ChannelRows)> = Vec::new();
-    let converted: Vec<Plane> = cp
-        .filter_idx
-        .iter()
-        .zip(converted)
-        .map(|(&i, (plane, kept))| {
-            carried.extend(kept.map(|r| (i, r)));
-            plane
-        })
-        .collect();
-    carried.extend(cp.other_idx.iter().copied().zip(other_rows));
     let mut planes: Vec<(String, Option<Plane>, usize)> = Vec::new();
     for (&i, plane) in cp.filter_idx.iter().zip(converted) {
         let n = uses.iter().filter(|u| **u == ctx.names[i]).count();
