@@ -141,21 +141,18 @@ pub fn blocks(out: Rect, rows: usize) -> Vec<Rect> {
 
 /// The blocks' results ([`filter_block`], any order) pasted into planes over `out`.
 pub fn assemble(jobs: &[Job<'_>], out: Rect, blocks: impl IntoIterator<Item = Vec<Vec<Plane>>>) -> Vec<Vec<Plane>> {
-    let mut blocks = blocks.into_iter();
-    let Some(first) = blocks.next() else {
-        return jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
-    };
-    let covers = first.len() == jobs.len()
-        && first.iter().zip(jobs).all(|(p, j)| p.len() == j.values.len() && p.iter().all(|p| p.rect() == out));
-    let mut rest = blocks.peekable();
+    let mut blocks: Vec<Vec<Vec<Plane>>> = blocks.into_iter().collect();
     // One block covering `out` (a 1080p tile on two threads): its planes are
     // the outputs, moved instead of copied into planes filled first.
-    if covers && rest.peek().is_none() {
-        return first;
+    if let [only] = &blocks[..]
+        && only.len() == jobs.len()
+        && only.iter().zip(jobs).all(|(p, j)| p.len() == j.values.len() && p.iter().all(|p| p.rect() == out))
+    {
+        return blocks.pop().expect("one block");
     }
     let mut outputs: Vec<Vec<Plane>> =
         jobs.iter().map(|j| j.values.iter().map(|_| Plane::filled(out, 0.0)).collect()).collect();
-    for block in std::iter::once(first).chain(rest) {
+    for block in blocks {
         for (job_out, block_job) in outputs.iter_mut().zip(block) {
             for (plane, part) in job_out.iter_mut().zip(block_job) {
                 plane.paste(&part);
@@ -1199,9 +1196,30 @@ fn window_sums_row<const W: usize>(
     }
 }
 
+/// Where the windows of `2f + 1` columns lie whole inside `clip`, in a
+/// row of `dst_len` sums from column `dst_x0` of a source row from
+/// `src_x0`: the columns `(x0, x1)` (the clipped ones are before and from
+/// them), their indices in the row of sums, and where in the source row
+/// the first one's window starts.
+#[inline(always)]
+fn whole_windows(
+    src_x0: i64,
+    clip: Rect,
+    f: i64,
+    dst_x0: i64,
+    dst_len: usize,
+) -> ((i64, i64), std::ops::Range<usize>, usize) {
+    let dst_x1 = dst_x0 + dst_len as i64;
+    let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
+    let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
+    let inner = (inner_x0 - dst_x0) as usize..(inner_x1 - dst_x0) as usize;
+    ((inner_x0, inner_x1), inner, (inner_x0 - f - src_x0).max(0) as usize)
+}
+
 /// The clipped windows of [`window_sums_row`] (the columns next to `clip`'s
 /// edges, each summed in increasing x into `dst`); returns the indices in
-/// `dst` of the whole windows, and where in `src` the first one starts.
+/// `dst` of the whole windows, and where in `src` the first one starts
+/// ([`whole_windows`]).
 #[inline(always)]
 fn clipped_window_sums(
     src: &[f32],
@@ -1212,8 +1230,7 @@ fn clipped_window_sums(
     dst: &mut [f32],
 ) -> (std::ops::Range<usize>, usize) {
     let dst_x1 = dst_x0 + dst.len() as i64;
-    let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
-    let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
+    let ((inner_x0, inner_x1), inner, from) = whole_windows(src_x0, clip, f, dst_x0, dst.len());
     for x in (dst_x0..inner_x0).chain(inner_x1..dst_x1) {
         let a = ((x - f).max(clip.x0) - src_x0) as usize;
         let b = ((x + f).min(clip.x1 - 1) - src_x0) as usize;
@@ -1223,8 +1240,7 @@ fn clipped_window_sums(
         }
         dst[(x - dst_x0) as usize] = acc;
     }
-    let inner = (inner_x0 - dst_x0) as usize..(inner_x1 - dst_x0) as usize;
-    (inner, (inner_x0 - f - src_x0).max(0) as usize)
+    (inner, from)
 }
 
 /// [`window_sums_row`] of `src` pushed as frame row `y` (`y0` as
@@ -1248,8 +1264,7 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
     #[cfg(target_arch = "x86_64")]
     if AVX512 && (1..=4).contains(&f) {
         let dst_x1 = dst_x0 + h.len() as i64;
-        let inner_x0 = (clip.x0 + f).clamp(dst_x0, dst_x1);
-        let inner_x1 = (clip.x1 - f).clamp(inner_x0, dst_x1);
+        let ((inner_x0, inner_x1), whole, whole_from) = whole_windows(src_x0, clip, f, dst_x0, h.len());
         let mut slot = b.slot(y, y0, h.len());
         let limit = slot.q.limit();
         let (inner, from) = if inner_x0 - dst_x0 <= 16 && dst_x1 - inner_x1 <= 16 {
@@ -1271,7 +1286,7 @@ fn push_window_sums<const W: usize, const AVX512: bool, const CLAMP: bool>(
                     }
                 }
             }
-            ((inner_x0 - dst_x0) as usize..(inner_x1 - dst_x0) as usize, (inner_x0 - f - src_x0).max(0) as usize)
+            (whole, whole_from)
         } else {
             let (inner, from) = clipped_window_sums(src, src_x0, clip, f, dst_x0, h);
             slot.push::<CLAMP>(0, &h[..inner.start]);
