@@ -25,7 +25,9 @@
 //! first sample by `k` times it, modulo 4 KiB: with 0, every plane starts
 //! at the same place in the L1 cache's sets (about 15-20 % slower for the
 //! full filter here; the kernel's own planes staggered alike were no
-//! faster, session 48). Nanoseconds and cycles (at `GHZ`, default 3.5) per
+//! faster, session 48). `DIST=1..5` replaces stage `d` with a variant of the
+//! colour distance's loop (see `dist_variant`; session 50), `ALPHA_FMA=1`
+//! runs the kernel's loop with its variance terms as fused multiply-adds. Nanoseconds and cycles (at `GHZ`, default 3.5) per
 //! pixel-offset. Needs a CPU with AVX-512.
 //!
 //!   cargo run --release --example step_replay [REPS]
@@ -176,6 +178,8 @@ fn run(stages: &str, reps: usize) -> f64 {
     let fixed = |class: &str| fixed_list == "1" || fixed_list.split(',').any(|c| c == class);
     let on = |c: char| stages.contains(c);
     let dy = 1usize;
+    let dist_mode = env_usize("DIST", 0);
+    let alpha_fma = std::env::var("ALPHA_FMA").is_ok_and(|v| v == "1");
     // The pairs' rows: `outer` (the block widened by 2F) and the seven
     // offsets' spread; the distance boxes' rows `mid` (widened by F).
     let (outer, mid) = (n + 4 * F, n + 2 * F);
@@ -214,7 +218,21 @@ fn run(stages: &str, reps: usize) -> f64 {
                     let vp = [&v[0][y][..], &v[1][y][..], &v[2][y][..]];
                     let vq = [&v[0][yq][g + 1..], &v[1][yq][g + 1..], &v[2][yq][g + 1..]];
                     let w = outer + g + 1;
-                    kernels::colour_distance_pair_rgb::<16, true>(&mut d[..w], &mut m[..w], up, uq, vp, vq, consts);
+                    if dist_mode > 0 {
+                        dist_variant(dist_mode, &mut d[..w], &mut m[..w], up, uq, vp, vq, consts);
+                    } else if alpha_fma {
+                        kernels::colour_distance_pair_rgb::<16, false>(
+                            &mut d[..w],
+                            &mut m[..w],
+                            up,
+                            uq,
+                            vp,
+                            vq,
+                            consts,
+                        );
+                    } else {
+                        kernels::colour_distance_pair_rgb::<16, true>(&mut d[..w], &mut m[..w], up, uq, vp, vq, consts);
+                    }
                 }
                 if on('p') {
                     for (side, row) in [(0, &d[..mid + 2 * F]), (1, &m[g + 1..g + 1 + mid + 2 * F])] {
@@ -312,4 +330,66 @@ fn run(stages: &str, reps: usize) -> f64 {
     black_box(&jobs);
     // Pixel-offsets: every row's fourteen lanes of `n` pixels.
     best * 1e9 / (reps * rows * 2 * G * n) as f64
+}
+
+/// Probe variants of the colour distance's loop (`DIST`; with `alpha` 1,
+/// the kernel's default): 1 the kernel's arithmetic in intrinsics, 2 its
+/// divisions replaced by multiplies, 3 by `vrcp14ps`, 4 the variances not
+/// loaded (each derived from its value by an add), 5 channel 0's rows
+/// loaded for all three channels. 2-5 are bounds (wrong results): what the
+/// loop waits on (docs/performance.md, session 50). Whole vectors only:
+/// the last `n % 16` samples of `fwd` and `mir` are left as they were.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma,avx2,f16c")]
+#[allow(clippy::too_many_arguments)]
+fn dist_variant(
+    mode: usize,
+    fwd: &mut [f32],
+    mir: &mut [f32],
+    up: [&[f32]; 3],
+    uq: [&[f32]; 3],
+    vp: [&[f32]; 3],
+    vq: [&[f32]; 3],
+    (_alpha, eps, k2): (f32, f32, f32),
+) {
+    use std::arch::x86_64::*;
+    let n = fwd.len();
+    assert!(mir.len() >= n && [up, uq, vp, vq].iter().flatten().all(|r| r.len() >= n), "rows of n samples");
+    let (k2v, epsv) = (_mm512_set1_ps(k2), _mm512_set1_ps(eps));
+    let one = _mm512_set1_ps(1.0);
+    let mut i = 0;
+    while i + 16 <= n {
+        let (mut a, mut b) = (_mm512_setzero_ps(), _mm512_setzero_ps());
+        for c in 0..3 {
+            // SAFETY: `i + 16 <= n`, and every row holds `n` samples (asserted).
+            unsafe {
+                let cc = if mode == 5 { 0 } else { c };
+                let pu = _mm512_loadu_ps(up[cc].as_ptr().add(i));
+                let qu = _mm512_loadu_ps(uq[cc].as_ptr().add(i));
+                let (pv, qv) = if mode == 4 {
+                    (_mm512_add_ps(pu, one), _mm512_add_ps(qu, one))
+                } else {
+                    (_mm512_loadu_ps(vp[cc].as_ptr().add(i)), _mm512_loadu_ps(vq[cc].as_ptr().add(i)))
+                };
+                let d = _mm512_sub_ps(pu, qu);
+                let d2 = _mm512_mul_ps(d, d);
+                let m = _mm512_min_ps(qv, pv);
+                let den = _mm512_fmadd_ps(k2v, _mm512_add_ps(pv, qv), epsv);
+                let r = match mode {
+                    2 => _mm512_mul_ps(den, den),
+                    3 => _mm512_rcp14_ps(den),
+                    _ => _mm512_div_ps(one, den),
+                };
+                let e = _mm512_sub_ps(d2, m);
+                a = _mm512_fmadd_ps(_mm512_sub_ps(e, pv), r, a);
+                b = _mm512_fmadd_ps(_mm512_sub_ps(e, qv), r, b);
+            }
+        }
+        // SAFETY: as the loads.
+        unsafe {
+            _mm512_storeu_ps(fwd.as_mut_ptr().add(i), a);
+            _mm512_storeu_ps(mir.as_mut_ptr().add(i), b);
+        }
+        i += 16;
+    }
 }
