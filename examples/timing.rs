@@ -29,6 +29,8 @@ use nldenoise::geom::Rect;
 use nldenoise::image::Samples;
 
 fn main() {
+    // As `nldenoise` runs: its allocator's fresh memory in 2 MiB pages.
+    nldenoise::engine::budget::exec_with_huge_pages();
     // The allocator policy `nldenoise denoise` runs with (and embedders are
     // told to set): since session 43 the runs after a process's first reuse
     // its pages, as a batch's frames do.

@@ -162,6 +162,8 @@ fn init_logging(verbose: u8, quiet: bool) {
 
 /// Run the command line; never panics on bad input.
 pub fn main() -> ExitCode {
+    // Fresh memory in 2 MiB pages (a re-execution, at most once; before any thread).
+    nldenoise::engine::budget::exec_with_huge_pages();
     let cli = Cli::parse();
     nldenoise::engine::budget::bound_allocator();
     // Interrupted (Ctrl-C, a farm's SIGTERM): leave no temporary output behind.
@@ -172,6 +174,12 @@ pub fn main() -> ExitCode {
         std::process::exit(130);
     });
     init_logging(cli.verbose, cli.quiet);
+    if nldenoise::engine::budget::huge_pages_requested() {
+        tracing::debug!(
+            "allocator: transparent huge pages requested ({})",
+            nldenoise::engine::budget::HUGE_PAGES_TUNABLE
+        );
+    }
     let result = match cli.command {
         Command::Denoise(a) => denoise::run(a),
         Command::Info(a) => info::run(a),

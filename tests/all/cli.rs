@@ -219,6 +219,29 @@ fn info_prints_roles_and_plan() {
     assert!(text.contains("--layers auto"), "{text}");
 }
 
+/// The CLI runs itself again once with glibc's huge-pages tunable
+/// (`engine::budget::exec_with_huge_pages`), unless the user opted out or
+/// chose the tunable's value, or the kernel has no transparent huge pages.
+#[test]
+fn the_cli_asks_for_huge_pages_once_unless_told_not_to() {
+    let thp = std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled").unwrap_or_default();
+    let expected = cfg!(all(target_os = "linux", target_env = "gnu")) && !thp.is_empty() && !thp.contains("[never]");
+    let run = |env: &[(&str, &str)]| {
+        let mut cmd = bin();
+        cmd.env_remove("GLIBC_TUNABLES").env_remove("NLDENOISE_HUGE_PAGES").env_remove("RUST_LOG");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let out = cmd.args(["-vv", "info"]).arg(fixture("cornell_0032spp.exr")).assert().success().get_output().clone();
+        String::from_utf8(out.stderr).unwrap().matches("transparent huge pages requested").count()
+    };
+    assert_eq!(run(&[]), usize::from(expected), "the default run");
+    assert_eq!(run(&[("NLDENOISE_HUGE_PAGES", "0")]), 0, "opted out");
+    assert_eq!(run(&[("GLIBC_TUNABLES", "glibc.malloc.hugetlb=0")]), 0, "the user's own value");
+    // Another tunable of the user's is kept beside ours.
+    assert_eq!(run(&[("GLIBC_TUNABLES", "glibc.malloc.arena_max=1")]), usize::from(expected), "beside another tunable");
+}
+
 #[test]
 fn compare_prints_the_metrics() {
     let f = fixture("cornell_0032spp.exr");
