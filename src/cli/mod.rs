@@ -175,10 +175,8 @@ pub fn main() -> ExitCode {
     });
     init_logging(cli.verbose, cli.quiet);
     if nldenoise::engine::budget::huge_pages_requested() {
-        tracing::debug!(
-            "allocator: transparent huge pages requested ({})",
-            nldenoise::engine::budget::HUGE_PAGES_TUNABLE
-        );
+        let tunables = std::env::var("GLIBC_TUNABLES").unwrap_or_default();
+        tracing::debug!("allocator: transparent huge pages requested (GLIBC_TUNABLES={tunables})");
     }
     let result = match cli.command {
         Command::Denoise(a) => denoise::run(a),

@@ -291,9 +291,13 @@ pub fn bound_allocator() {
 pub const HUGE_PAGES_TUNABLE: &str = "glibc.malloc.hugetlb=1";
 
 /// The environment variable [`exec_with_huge_pages`] reads: `0` turns the
-/// re-execution off; it is set to `1` in the re-executed process, so that
-/// it happens at most once.
+/// re-execution off; it is set to [`HUGE_PAGES_DONE`] in the re-executed
+/// process, so that it happens at most once (even where glibc drops
+/// `GLIBC_TUNABLES`, as it does for set-user-ID programs).
 pub const HUGE_PAGES_ENV: &str = "NLDENOISE_HUGE_PAGES";
+
+/// [`HUGE_PAGES_ENV`]'s value in the re-executed process.
+pub const HUGE_PAGES_DONE: &str = "re-executed";
 
 /// Whether this process started with [`HUGE_PAGES_TUNABLE`] in
 /// `GLIBC_TUNABLES` (by [`exec_with_huge_pages`] or its caller).
@@ -323,8 +327,8 @@ pub fn huge_pages_requested() -> bool {
 ///
 /// Returns without doing anything when `GLIBC_TUNABLES` already names
 /// `glibc.malloc.hugetlb` (the caller's own choice), when
-/// [`HUGE_PAGES_ENV`] is set (to `0` by a user who opts out, to `1` by
-/// the re-execution itself), when the kernel's huge pages are `never` or
+/// [`HUGE_PAGES_ENV`] is `0` (a user who opts out) or [`HUGE_PAGES_DONE`]
+/// (the re-execution itself), when the kernel's huge pages are `never` or
 /// unknown, and when the `exec` fails (the program then runs as it is).
 /// Call it first thing in `main`, before any thread starts; it is for
 /// programs (the CLI, the benchmarks), not for libraries. Elsewhere than
@@ -334,7 +338,10 @@ pub fn exec_with_huge_pages() {
     {
         use std::os::unix::process::CommandExt;
         let tunables = std::env::var_os("GLIBC_TUNABLES").unwrap_or_default();
-        if tunables.to_string_lossy().contains("glibc.malloc.hugetlb") || std::env::var_os(HUGE_PAGES_ENV).is_some() {
+        let choice = std::env::var_os(HUGE_PAGES_ENV);
+        if tunables.to_string_lossy().contains("glibc.malloc.hugetlb")
+            || choice.is_some_and(|v| v == "0" || v == HUGE_PAGES_DONE)
+        {
             return;
         }
         match std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled") {
@@ -353,7 +360,7 @@ pub fn exec_with_huge_pages() {
             .arg0(arg0)
             .args(args)
             .env("GLIBC_TUNABLES", value)
-            .env(HUGE_PAGES_ENV, "1")
+            .env(HUGE_PAGES_ENV, HUGE_PAGES_DONE)
             .exec();
     }
 }
