@@ -23,7 +23,7 @@ fi
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores; $(date -u +%Y-%m-%d)"
-NLDENOISE_SIMD=avx2 valgrind --tool=cachegrind --cache-sim=yes --D1=49152,12,64 --LL=2097152,16,64 \
+NLDENOISE_HUGE_PAGES=0 NLDENOISE_SIMD=avx2 valgrind --tool=cachegrind --cache-sim=yes --D1=49152,12,64 --LL=2097152,16,64 \
   --cachegrind-out-file="$out/cg.out" "$bin" "$mode" 512 136 1 10 1 >"$out/log" 2>&1
 grep -E 'D1  misses|LL misses|D   refs' "$out/log" | sed 's/^==[0-9]*== //'
 cg_annotate --show=D1mr,D1mw,Ir "$out/cg.out" src/filter/kernels.rs src/filter/nlmeans.rs \

@@ -32,7 +32,7 @@ printf '%-40s %-7s %15s %15s\n' binary mode process kernel
 for bin in "$@"; do
   for mode in ${MODES:-colour full}; do
     log="$out/$mode.log"
-    NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/$mode.cg" \
+    NLDENOISE_HUGE_PAGES=0 NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/$mode.cg" \
       "$bin" "$mode" ${SIZE:-480 272} 1 10 1 >"$log" 2>&1
     process=$(grep -m1 'refs:' "$log" | awk '{print $NF}')
     # Inclusive count of the kernel: callgrind_annotate's inclusive column.

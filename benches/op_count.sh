@@ -34,7 +34,7 @@ out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs); $(date -u '+%Y-%m-%d %H:%M') UTC; commit $(git rev-parse --short HEAD 2>/dev/null || echo '?')"
 for r in "$R" 0; do
-  NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/cg.$r" --dump-instr=yes \
+  NLDENOISE_HUGE_PAGES=0 NLDENOISE_SIMD=avx2 valgrind --tool=callgrind --callgrind-out-file="$out/cg.$r" --dump-instr=yes \
     --compress-pos=no --compress-strings=no --toggle-collect='*filter_block_avx2*' \
     "$bin" "$MODE" "$W" "$H" 1 "$r" 1 >/dev/null 2>&1
 done

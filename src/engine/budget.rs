@@ -328,7 +328,8 @@ pub fn huge_pages_requested() -> bool {
 /// Returns without doing anything when `GLIBC_TUNABLES` already names
 /// `glibc.malloc.hugetlb` (the caller's own choice), when
 /// [`HUGE_PAGES_ENV`] is `0` (a user who opts out) or [`HUGE_PAGES_DONE`]
-/// (the re-execution itself), when the kernel's huge pages are `never` or
+/// (the re-execution itself), under valgrind (which an `exec` of
+/// `/proc/self/exe` would break), when the kernel's huge pages are `never` or
 /// unknown, and when the `exec` fails (the program then runs as it is).
 /// Call it first thing in `main`, before any thread starts; it is for
 /// programs (the CLI, the benchmarks), not for libraries. Elsewhere than
@@ -339,8 +340,12 @@ pub fn exec_with_huge_pages() {
         use std::os::unix::process::CommandExt;
         let tunables = std::env::var_os("GLIBC_TUNABLES").unwrap_or_default();
         let choice = std::env::var_os(HUGE_PAGES_ENV);
+        // Under valgrind, whose preload library is in LD_PRELOAD, an exec of
+        // /proc/self/exe would start valgrind's own tool, which refuses to run.
+        let under_valgrind = std::env::var_os("LD_PRELOAD").is_some_and(|p| p.to_string_lossy().contains("vgpreload"));
         if tunables.to_string_lossy().contains("glibc.malloc.hugetlb")
             || choice.is_some_and(|v| v == "0" || v == HUGE_PAGES_DONE)
+            || under_valgrind
         {
             return;
         }
