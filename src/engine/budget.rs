@@ -321,8 +321,9 @@ pub fn huge_pages_requested() -> bool {
 /// instead of 109 thousand and 0.94x the CPU time, the same output bytes;
 /// a run under `--memory-limit 192M` the same peak. On the AMD Zen 4
 /// host of session 43 the same tunable had cost system time instead
-/// (1.1x the run's time): a host whose memory is too fragmented for huge
-/// pages pays for compacting it, and can turn this off with
+/// (1.1x the run's time), probably the kernel compacting memory too
+/// fragmented for huge pages (defrag `madvise` compacts on the fault,
+/// not measured there); such a host can turn this off with
 /// `NLDENOISE_HUGE_PAGES=0`.
 ///
 /// Returns without doing anything when `GLIBC_TUNABLES` already names
